@@ -1,0 +1,1 @@
+"""reshader's training toolchain: dataset rendering, training, export."""

@@ -1,0 +1,42 @@
+"""The `reshader-train` command: one subcommand per stage of the toolchain.
+
+Subcommand modules are imported only when chosen, so that `render` works without
+PyTorch installed and `train` works without Mitsuba.
+"""
+
+import argparse
+import importlib
+import sys
+
+# (name, module, one-line help). Each module defines add_arguments(parser) and run(args).
+COMMANDS = [
+]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="reshader-train",
+        description="Render training data, train the reshading network, export ONNX models.",
+    )
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for name, module, help_text in COMMANDS:
+        p = sub.add_parser(name, help=help_text, description=help_text)
+        p.set_defaults(_module=module)
+        try:
+            importlib.import_module(module).add_arguments(p)
+        except ImportError as err:
+            p.set_defaults(_import_error=err)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    err = getattr(args, "_import_error", None)
+    if err is not None:
+        print(f"reshader-train {args.command}: missing dependency: {err}", file=sys.stderr)
+        return 2
+    return int(importlib.import_module(args._module).run(args) or 0)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

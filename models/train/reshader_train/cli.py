@@ -10,6 +10,8 @@ import sys
 
 # (name, module, one-line help). Each module defines add_arguments(parser) and run(args).
 COMMANDS = [
+    ("train", "reshader_train.train", "train the reshading network (single process or torchrun)"),
+    ("evaluate", "reshader_train.evaluate", "PSNR/SSIM of input vs reshaded on held-out data"),
 ]
 
 

@@ -1,0 +1,235 @@
+"""Reading the rendered dataset and making training samples (paper section 3.5).
+
+Layout (written by `reshader-train render`): `<root>/<id>/` with `input.exr`, `reshaded.exr`
+(RGB float HDR), `depth.exr` (one channel, z-depth along the optical axis, inf on a miss),
+`mask.png` (8-bit, 255 = valid) and `meta.json` with "novel_offset" [tx, ty, tz] (OpenCV
+frame of the input camera, scene units). Only folders with a meta.json are complete;
+`.tmp-*` folders are renders in progress.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch.utils.data import Dataset
+
+from .tonemap import EVAL_EXPOSURE, EVAL_GAMMA, EXPOSURE_RANGE, GAMMA_RANGE, tonemap
+
+DISPARITY_SCALE_RANGE = (0.5, 2.0)
+DEPTH_CHANNEL_NAMES = ("Y", "Z", "depth", "R", "L")
+
+
+class DatasetError(RuntimeError):
+    pass
+
+
+def read_exr(path: Path, channels: int) -> np.ndarray:
+    """(H, W, channels) float32; RGB(A) files give R, G, B, one-channel files their channel."""
+    import OpenEXR
+
+    try:
+        with OpenEXR.File(str(path), separate_channels=True) as f:
+            planes = {name: ch.pixels for name, ch in f.channels().items()}
+    except Exception as err:
+        raise DatasetError(f"{path}: cannot read EXR ({err})") from err
+    if channels == 3:
+        names = ["R", "G", "B"]
+    elif len(planes) == 1:
+        names = list(planes)
+    else:
+        names = [next((n for n in DEPTH_CHANNEL_NAMES if n in planes), "")]
+    missing = [n for n in names if n not in planes]
+    if missing:
+        raise DatasetError(f"{path}: expected channels {names}, file has {sorted(planes)}")
+    return np.stack([planes[n].astype(np.float32, copy=False) for n in names], axis=-1)
+
+
+def read_mask(path: Path) -> np.ndarray:
+    from PIL import Image
+
+    try:
+        with Image.open(path) as im:
+            a = np.asarray(im.convert("L"))
+    except Exception as err:
+        raise DatasetError(f"{path}: cannot read mask PNG ({err})") from err
+    return a >= 128
+
+
+def disparity_from_depth(depth: np.ndarray) -> np.ndarray:
+    """The network's disparity input d = clamp(0.25 / depth, 0, 1); misses (inf, 0, nan) -> 0."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        d = 0.25 / depth
+    d[~np.isfinite(d) | (depth <= 0)] = 0.0
+    return np.clip(d, 0.0, 1.0).astype(np.float32)
+
+
+def list_examples(root: Path) -> list[Path]:
+    root = Path(root)
+    if not root.is_dir():
+        raise DatasetError(f"{root}: dataset folder does not exist")
+    found = sorted(
+        p
+        for p in root.iterdir()
+        if p.is_dir() and not p.name.startswith(".tmp-") and (p / "meta.json").is_file()
+    )
+    if not found:
+        raise DatasetError(f"{root}: no complete examples (folders with meta.json)")
+    return found
+
+
+@dataclass
+class Example:
+    """One decoded example; HDR colours are float16 to halve the cache."""
+
+    name: str
+    input: np.ndarray  # (H, W, 3) HDR
+    reshaded: np.ndarray  # (H, W, 3) HDR
+    disparity: np.ndarray  # (H, W) network disparity, before augmentation
+    mask: np.ndarray  # (H, W) bool
+    offset: np.ndarray  # (3,) novel camera centre in the input camera frame
+    scene: str
+
+
+def load_example(folder: Path) -> Example:
+    try:
+        meta = json.loads((folder / "meta.json").read_text())
+        offset = np.asarray(meta["novel_offset"], dtype=np.float32)
+    except (OSError, ValueError, KeyError, TypeError) as err:
+        raise DatasetError(
+            f"{folder / 'meta.json'}: unreadable or no novel_offset ({err})"
+        ) from err
+    if offset.shape != (3,) or not np.all(np.isfinite(offset)):
+        raise DatasetError(f"{folder / 'meta.json'}: novel_offset must be 3 finite numbers")
+    image = read_exr(folder / "input.exr", 3)
+    reshaded = read_exr(folder / "reshaded.exr", 3)
+    depth = read_exr(folder / "depth.exr", 1)[..., 0]
+    mask = read_mask(folder / "mask.png")
+    shape = image.shape[:2]
+    for name, arr in (("reshaded.exr", reshaded), ("depth.exr", depth), ("mask.png", mask)):
+        if arr.shape[:2] != shape:
+            raise DatasetError(
+                f"{folder / name}: size {arr.shape[:2]} differs from input.exr {shape}"
+            )
+    scene = str(meta.get("scene", meta.get("scene_kind", "all")))
+    return Example(
+        name=folder.name,
+        input=np.nan_to_num(image).astype(np.float16),
+        reshaded=np.nan_to_num(reshaded).astype(np.float16),
+        disparity=disparity_from_depth(depth),
+        mask=mask,
+        offset=offset,
+        scene=scene,
+    )
+
+
+@dataclass(frozen=True)
+class Augment:
+    exposure: tuple[float, float] = EXPOSURE_RANGE
+    gamma: tuple[float, float] = GAMMA_RANGE
+    disparity_scale: tuple[float, float] = DISPARITY_SCALE_RANGE
+    flip: bool = True
+
+
+def _log_uniform(rng: np.random.Generator, lo: float, hi: float) -> float:
+    return math.exp(rng.uniform(math.log(lo), math.log(hi)))
+
+
+def make_sample(
+    ex: Example,
+    crop: int | None,
+    rng: np.random.Generator | None,
+    aug: Augment | None,
+) -> dict[str, torch.Tensor]:
+    """Crop + tone map + disparity scale. Without `aug`: fixed evaluation tone mapping, f = 1."""
+    h, w = ex.mask.shape
+    y0 = x0 = 0
+    ch, cw = h, w
+    if crop is not None:
+        if crop > h or crop > w:
+            raise DatasetError(f"{ex.name}: crop {crop} larger than the {h}x{w} image")
+        ch = cw = crop
+        if rng is not None:
+            y0 = int(rng.integers(0, h - crop + 1))
+            x0 = int(rng.integers(0, w - crop + 1))
+        else:
+            y0, x0 = (h - crop) // 2, (w - crop) // 2
+    win = (slice(y0, y0 + ch), slice(x0, x0 + cw))
+    hdr_in = ex.input[win].astype(np.float32)
+    hdr_gt = ex.reshaded[win].astype(np.float32)
+    disp = ex.disparity[win]
+    mask = ex.mask[win]
+    camera = ex.offset.copy()
+    if aug is not None and rng is not None:
+        exposure = _log_uniform(rng, *aug.exposure)
+        gamma = float(rng.uniform(*aug.gamma))
+        f = _log_uniform(rng, *aug.disparity_scale)
+        # Scaling disparity by f is scaling depth by 1/f; the camera offset scales with the
+        # depth so that the picture stays the same geometry (scale covariance).
+        disp = np.clip(disp * f, 0.0, 1.0)
+        camera = camera / f
+        if aug.flip and rng.random() < 0.5:
+            # A mirrored scene seen from the mirrored camera: x flips, so does tx.
+            hdr_in, hdr_gt, disp, mask = (a[:, ::-1] for a in (hdr_in, hdr_gt, disp, mask))
+            camera[0] = -camera[0]
+    else:
+        exposure, gamma = EVAL_EXPOSURE, EVAL_GAMMA
+
+    def chw(a: np.ndarray) -> torch.Tensor:
+        a = np.ascontiguousarray(a, dtype=np.float32)
+        return torch.from_numpy(a.transpose(2, 0, 1) if a.ndim == 3 else a[None])
+
+    return {
+        "image": chw(tonemap(hdr_in, exposure, gamma)),
+        "target": chw(tonemap(hdr_gt, exposure, gamma)),
+        "disparity": chw(disp),
+        "mask": chw(mask.astype(np.float32)),
+        "camera": torch.from_numpy(camera.astype(np.float32)),
+    }
+
+
+class ReshadeDataset(Dataset):
+    """Training samples from one dataset folder; decoded examples are cached per process."""
+
+    def __init__(
+        self,
+        root: Path,
+        crop: int | None = None,
+        augment: Augment | None = None,
+        cache: bool = True,
+        limit: int | None = None,
+    ) -> None:
+        self.folders = list_examples(Path(root))[:limit]
+        self.crop = crop
+        self.augment = augment
+        self.cache = cache
+        self._examples: dict[int, Example] = {}
+        self._rng: np.random.Generator | None = None
+        self._rng_pid = -1
+
+    def __len__(self) -> int:
+        return len(self.folders)
+
+    def example(self, idx: int) -> Example:
+        ex = self._examples.get(idx)
+        if ex is None:
+            ex = load_example(self.folders[idx])
+            if self.cache:
+                self._examples[idx] = ex
+        return ex
+
+    def _generator(self) -> np.random.Generator:
+        # torch gives every DataLoader worker (and every epoch's workers) its own seed.
+        if self._rng is None or self._rng_pid != os.getpid():
+            self._rng = np.random.default_rng(torch.initial_seed() % (2**63))
+            self._rng_pid = os.getpid()
+        return self._rng
+
+    def __getitem__(self, idx: int) -> dict[str, torch.Tensor]:
+        rng = self._generator() if self.augment is not None else None
+        return make_sample(self.example(idx), self.crop, rng, self.augment)

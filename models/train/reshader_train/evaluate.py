@@ -1,0 +1,237 @@
+"""`reshader-train evaluate`: how much reshading helps, in the layout of the paper's Table 2.
+
+For every example of each dataset folder given, the tone-mapped input ("Input": no
+reshading) and the network's output ("Ours") are compared with the tone-mapped ground-truth
+reshaded image, both masked by the validity mask. Tone mapping is fixed (see tonemap.py:
+exposure EVAL_EXPOSURE, gamma EVAL_GAMMA) so numbers compare across runs. PSNR and SSIM are
+means over examples; the gain is the mean per-example PSNR difference.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import sys
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from .data import list_examples, load_example, make_sample
+from .model import ALIGN, NetConfig, ReshadeNet
+from .tonemap import EVAL_EXPOSURE, EVAL_GAMMA
+
+SSIM_WINDOW = 11
+SSIM_SIGMA = 1.5
+
+
+def masked_psnr(pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor) -> float:
+    """PSNR over valid pixels of (3,H,W) images in [0,1]; mask is (1,H,W)."""
+    valid = mask.expand_as(pred) > 0.5
+    mse = float(((pred - target)[valid] ** 2).mean()) if valid.any() else float("nan")
+    return 10.0 * math.log10(1.0 / max(mse, 1e-12))
+
+
+def _gaussian_window(channels: int) -> torch.Tensor:
+    x = torch.arange(SSIM_WINDOW, dtype=torch.float32) - SSIM_WINDOW // 2
+    g = torch.exp(-(x**2) / (2 * SSIM_SIGMA**2))
+    g = g / g.sum()
+    return (g[:, None] * g[None, :]).expand(channels, 1, SSIM_WINDOW, SSIM_WINDOW).contiguous()
+
+
+def ssim_map(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """Per-pixel SSIM (Wang et al. 2004, Gaussian 11x11 sigma 1.5) of (C,H,W) images in [0,1]."""
+    c = a.shape[0]
+    win = _gaussian_window(c)
+    pad = SSIM_WINDOW // 2
+
+    def blur(x: torch.Tensor) -> torch.Tensor:
+        return F.conv2d(F.pad(x[None], (pad,) * 4, mode="reflect"), win, groups=c)[0]
+
+    c1, c2 = 0.01**2, 0.03**2
+    mu_a, mu_b = blur(a), blur(b)
+    var_a = blur(a * a) - mu_a**2
+    var_b = blur(b * b) - mu_b**2
+    cov = blur(a * b) - mu_a * mu_b
+    return ((2 * mu_a * mu_b + c1) * (2 * cov + c2)) / (
+        (mu_a**2 + mu_b**2 + c1) * (var_a + var_b + c2)
+    )
+
+
+def masked_ssim(pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor) -> float:
+    valid = mask.expand_as(pred) > 0.5
+    return float(ssim_map(pred, target)[valid].mean())
+
+
+def pad_to_multiple(x: torch.Tensor, multiple: int = ALIGN) -> torch.Tensor:
+    """Replicate-pad (N,C,H,W) at the bottom/right to multiples of `multiple`."""
+    h, w = x.shape[-2:]
+    ph, pw = (-h) % multiple, (-w) % multiple
+    return F.pad(x, (0, pw, 0, ph), mode="replicate") if ph or pw else x
+
+
+@torch.no_grad()
+def reshade(net: ReshadeNet, image: torch.Tensor, disparity: torch.Tensor, camera: torch.Tensor):
+    """Full-image inference on (3,H,W)/(1,H,W)/(3,) tensors: pad, run, crop, clamp."""
+    h, w = image.shape[-2:]
+    out = net(pad_to_multiple(image[None]), pad_to_multiple(disparity[None]), camera[None])
+    return out[0, :, :h, :w].clamp(0.0, 1.0)
+
+
+def load_checkpoint_model(
+    path: Path, device: torch.device | str = "cpu"
+) -> tuple[ReshadeNet, dict]:
+    if not Path(path).is_file():
+        raise FileNotFoundError(f"{path}: checkpoint not found")
+    ckpt = torch.load(path, map_location=device, weights_only=False)
+    if "model" not in ckpt or "net_config" not in ckpt:
+        raise ValueError(f"{path}: not a reshader training checkpoint (no model/net_config)")
+    net = ReshadeNet(NetConfig.from_json(ckpt["net_config"])).to(device)
+    net.load_state_dict(ckpt["model"])
+    net.eval()
+    return net, ckpt
+
+
+def lpips_metric():
+    """(LPIPS callable, None) when lpips and its AlexNet weights are on disk, else (None, why)."""
+    try:
+        import lpips  # noqa: F401
+    except ImportError:
+        return None, "LPIPS: not available (no weights: the lpips package is not installed)"
+    torch_home = Path(os.environ.get("TORCH_HOME", Path.home() / ".cache/torch"))
+    if not list((torch_home / "hub/checkpoints").glob("alexnet-*.pth")):
+        return (
+            None,
+            "LPIPS: not available (no weights: AlexNet backbone not in the torch hub cache)",
+        )
+    import lpips
+
+    model = lpips.LPIPS(net="alex", verbose=False).eval()
+
+    def metric(pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor) -> float:
+        with torch.no_grad():
+            return float(model(pred[None] * mask * 2 - 1, target[None] * mask * 2 - 1))
+
+    return metric, None
+
+
+def evaluate_folder(net: ReshadeNet, root: Path, limit: int | None, lpips_fn=None) -> list[dict]:
+    rows = []
+    for folder in list_examples(root)[:limit]:
+        ex = load_example(folder)
+        s = make_sample(ex, crop=None, rng=None, aug=None)
+        ours = reshade(net, s["image"], s["disparity"], s["camera"])
+        row = {"split": root.name, "scene": ex.scene, "example": ex.name}
+        for method, img in (("input", s["image"]), ("ours", ours)):
+            row[f"psnr_{method}"] = masked_psnr(img, s["target"], s["mask"])
+            row[f"ssim_{method}"] = masked_ssim(img, s["target"], s["mask"])
+            if lpips_fn is not None:
+                row[f"lpips_{method}"] = lpips_fn(img, s["target"], s["mask"])
+        row["_images"] = (s["image"], ours, s["target"], s["mask"])
+        rows.append(row)
+    return rows
+
+
+def summarise(rows: list[dict]) -> dict[str, dict]:
+    """Per split (and per scene when a split has several) mean metrics and PSNR gain."""
+    groups: dict[str, list[dict]] = defaultdict(list)
+    for r in rows:
+        groups[r["split"]].append(r)
+        groups[f"{r['split']}/{r['scene']}"].append(r)
+    out = {}
+    for name, rs in groups.items():
+        if "/" in name and len({r["scene"] for r in groups[name.split("/")[0]]}) < 2:
+            continue
+        keys = [k for k in rs[0] if k.startswith(("psnr_", "ssim_", "lpips_"))]
+        out[name] = {k: float(np.mean([r[k] for r in rs])) for k in keys}
+        out[name]["gain_db"] = float(np.mean([r["psnr_ours"] - r["psnr_input"] for r in rs]))
+        out[name]["count"] = len(rs)
+    return out
+
+
+def format_table(summary: dict[str, dict], lpips_note: str | None) -> str:
+    lines = [
+        f"Tone mapping: exposure x{EVAL_EXPOSURE}, gamma {EVAL_GAMMA}; metrics masked by validity.",
+        f"{'Split / scene':<28} {'Method':<7} {'PSNR':>7} {'SSIM':>7} {'LPIPS':>7}",
+    ]
+    for name, m in summary.items():
+        for i, method in enumerate(("input", "ours")):
+            label = f"{name} (n={m['count']})" if i == 0 else ""
+            lp = f"{m[f'lpips_{method}']:7.4f}" if f"lpips_{method}" in m else f"{'-':>7}"
+            lines.append(
+                f"{label:<28} {method.capitalize():<7} {m[f'psnr_{method}']:7.2f} "
+                f"{m[f'ssim_{method}']:7.4f} {lp}"
+            )
+        lines.append(f"{'':<28} gain    {m['gain_db']:+7.2f} dB")
+    if lpips_note:
+        lines.append(lpips_note)
+    return "\n".join(lines)
+
+
+def write_sheet(rows: list[dict], path: Path, count: int = 6) -> None:
+    """Rows of input | ours | ground truth | |ours - gt| x4 (invalid pixels tinted red)."""
+    from PIL import Image
+
+    tiles = []
+    for r in rows[:count]:
+        image, ours, target, mask = r["_images"]
+        err = (
+            ((ours - target).abs().mean(0, keepdim=True) * 4).clamp(0, 1).expand(3, -1, -1).clone()
+        )
+        err[0] = torch.where(mask[0] > 0.5, err[0], torch.ones_like(err[0]))
+        tiles.append(torch.cat([image, ours, target, err], dim=2))
+    width = max(t.shape[2] for t in tiles)
+    tiles = [F.pad(t, (0, width - t.shape[2])) for t in tiles]
+    sheet = torch.cat(tiles, dim=1).permute(1, 2, 0).numpy()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp")
+    Image.fromarray((sheet * 255 + 0.5).astype(np.uint8)).save(tmp, format="PNG")
+    os.replace(tmp, path)
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--checkpoint", type=Path, required=True, help="training checkpoint (.pt)")
+    p.add_argument("--data", type=Path, nargs="+", required=True, help="held-out dataset folder(s)")
+    p.add_argument("--limit", type=int, help="first N examples of each folder")
+    p.add_argument("--sheet", type=Path, help="visual sheet PNG (input | ours | GT | error)")
+    p.add_argument("--json", type=Path, help="write per-split metrics as JSON")
+    p.add_argument("--threads", type=int, default=0, help="torch threads (0: torch default)")
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.threads > 0:
+        torch.set_num_threads(args.threads)
+    try:
+        net, ckpt = load_checkpoint_model(args.checkpoint)
+    except (FileNotFoundError, ValueError) as err:
+        print(f"evaluate: {err}", file=sys.stderr)
+        return 2
+    lpips_fn, lpips_note = lpips_metric()
+    rows = []
+    for root in args.data:
+        rows += evaluate_folder(net, root, args.limit, lpips_fn)
+    summary = summarise(rows)
+    step, feats = ckpt.get("step"), ckpt.get("feature_net")
+    print(f"checkpoint {args.checkpoint} (step {step}, feature net {feats})")
+    print(format_table(summary, lpips_note))
+    if args.json:
+        report = {
+            "checkpoint": str(args.checkpoint),
+            "step": ckpt.get("step"),
+            "feature_net": ckpt.get("feature_net"),
+            "exposure": EVAL_EXPOSURE,
+            "gamma": EVAL_GAMMA,
+            "lpips": lpips_note or "available",
+            "splits": summary,
+        }
+        tmp = args.json.with_name(f".{args.json.name}.tmp")
+        tmp.write_text(json.dumps(report, indent=2))
+        os.replace(tmp, args.json)
+    if args.sheet:
+        write_sheet(rows, args.sheet)
+        print(f"sheet: {args.sheet}")
+    return 0

@@ -1,0 +1,252 @@
+"""The reshading network (paper section 3.4): a UNet that predicts a residual image.
+
+Split into an encoder (image + disparity -> bottleneck and skip tensors, independent of the
+view) and a decoder (those + the novel camera position -> reshaded image), so that the
+runtime runs the encoder once per photo and only the decoder per view. The disparity
+frequency encoding lives inside the encoder: callers feed `d = clamp(0.25 / depth, 0, 1)`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+LEVELS = 6  # full resolution plus 5 average-pool downsamplings: H and W must divide by 32
+ALIGN = 2 ** (LEVELS - 1)
+DISPARITY_FREQUENCIES = 5
+ENCODED_DISPARITY_CHANNELS = 1 + 2 * DISPARITY_FREQUENCIES
+CAMERA_FEATURES = 128  # MLP output (125) concatenated with the raw 3-vector
+NEG_SLOPE = 0.1
+
+
+@dataclass(frozen=True)
+class NetConfig:
+    """Widths per level (full resolution first) and convolutions per block."""
+
+    widths: tuple[int, ...]
+    convs: tuple[int, ...] = (2, 2, 2, 2, 2, 2)
+    camera_hidden: tuple[int, ...] = (64, 128)
+
+    def __post_init__(self) -> None:
+        if len(self.widths) != LEVELS or len(self.convs) != LEVELS:
+            raise ValueError(f"NetConfig needs {LEVELS} widths and conv counts, got {self}")
+        if min(self.widths) < 1 or min(self.convs) < 1:
+            raise ValueError(f"NetConfig widths and conv counts must be positive: {self}")
+
+    def to_json(self) -> dict:
+        return asdict(self)
+
+    @staticmethod
+    def from_json(data: dict) -> NetConfig:
+        return NetConfig(
+            widths=tuple(data["widths"]),
+            convs=tuple(data["convs"]),
+            camera_hidden=tuple(data["camera_hidden"]),
+        )
+
+
+# `full` is the paper's network. `lite` is sized for the runtime (2 CPU cores via tract): a
+# quarter of the width everywhere, and one convolution per block at the two highest
+# resolutions, where the concatenations and bilinear resizes tract is slow at are largest
+# (measurements in the README's Training section).
+SIZES = {
+    "full": NetConfig(widths=(32, 64, 128, 256, 512, 512)),
+    "lite": NetConfig(widths=(8, 16, 32, 64, 128, 128), convs=(1, 1, 2, 2, 2, 2)),
+}
+
+
+def net_config(size: str) -> NetConfig:
+    """A named size, or explicit comma-separated widths such as "4,8,8,16,16,16"."""
+    if size in SIZES:
+        return SIZES[size]
+    try:
+        widths = tuple(int(w) for w in size.split(","))
+    except ValueError:
+        raise ValueError(
+            f"unknown network size {size!r}: use one of {sorted(SIZES)} or 6 comma-separated widths"
+        ) from None
+    return NetConfig(widths=widths, convs=(1,) * LEVELS, camera_hidden=(16,))
+
+
+def encode_disparity(d: torch.Tensor) -> torch.Tensor:
+    """[d, sin(2^i d), cos(2^i d) for i = 0..4] along the channel axis (11 channels, no pi)."""
+    parts = [d]
+    for i in range(DISPARITY_FREQUENCIES):
+        scaled = d * float(2**i)
+        parts += [torch.sin(scaled), torch.cos(scaled)]
+    return torch.cat(parts, dim=1)
+
+
+def _block(cin: int, cout: int, n: int) -> nn.Sequential:
+    layers: list[nn.Module] = []
+    for i in range(n):
+        layers += [nn.Conv2d(cin if i == 0 else cout, cout, 3, padding=1), nn.LeakyReLU(NEG_SLOPE)]
+    return nn.Sequential(*layers)
+
+
+class Encoder(nn.Module):
+    """(image, disparity) -> (bottleneck at H/32, skips at H, H/2, ..., H/16)."""
+
+    def __init__(self, cfg: NetConfig) -> None:
+        super().__init__()
+        cins = (3 + ENCODED_DISPARITY_CHANNELS,) + cfg.widths[:-1]
+        self.blocks = nn.ModuleList(
+            _block(cin, cout, n) for cin, cout, n in zip(cins, cfg.widths, cfg.convs, strict=True)
+        )
+
+    def forward(
+        self, image: torch.Tensor, disparity: torch.Tensor
+    ) -> tuple[torch.Tensor, list[torch.Tensor]]:
+        h, w = image.shape[-2:]
+        if h % ALIGN or w % ALIGN:
+            raise ValueError(f"image is {h}x{w}; height and width must be multiples of {ALIGN}")
+        x = torch.cat([image, encode_disparity(disparity)], dim=1)
+        skips = []
+        for i, block in enumerate(self.blocks):
+            if i > 0:
+                x = F.avg_pool2d(x, 2)
+            x = block(x)
+            skips.append(x)
+        return skips[-1], skips[:-1]
+
+
+class CameraMLP(nn.Module):
+    """3 -> ... -> 125, concatenated with the raw position: 128 features."""
+
+    def __init__(self, hidden: tuple[int, ...]) -> None:
+        super().__init__()
+        layers: list[nn.Module] = []
+        cin = 3
+        for width in hidden:
+            layers += [nn.Linear(cin, width), nn.LeakyReLU(NEG_SLOPE)]
+            cin = width
+        layers += [nn.Linear(cin, CAMERA_FEATURES - 3), nn.LeakyReLU(NEG_SLOPE)]
+        self.mlp = nn.Sequential(*layers)
+
+    def forward(self, camera: torch.Tensor) -> torch.Tensor:
+        return torch.cat([self.mlp(camera), camera], dim=1)
+
+
+class Decoder(nn.Module):
+    """(image, skips, bottleneck, camera) -> reshaded image = image + tanh(residual)."""
+
+    def __init__(self, cfg: NetConfig) -> None:
+        super().__init__()
+        w = cfg.widths
+        self.camera = CameraMLP(cfg.camera_hidden)
+        self.bottleneck = _block(w[-1] + CAMERA_FEATURES, w[-1], cfg.convs[-1])
+        self.ups = nn.ModuleList(
+            _block(w[i + 1] + w[i], w[i], cfg.convs[i]) for i in reversed(range(LEVELS - 1))
+        )
+        self.out = nn.Conv2d(w[0], 3, 3, padding=1)
+        # A small last layer starts the network near the identity (reshaded = input), which
+        # is the right answer for most pixels and what the no-reshading baseline scores.
+        nn.init.normal_(self.out.weight, std=1e-3)
+        nn.init.zeros_(self.out.bias)
+
+    def forward(
+        self,
+        image: torch.Tensor,
+        skips: list[torch.Tensor],
+        bottleneck: torch.Tensor,
+        camera: torch.Tensor,
+    ) -> torch.Tensor:
+        cam = self.camera(camera)[:, :, None, None]
+        cam = cam.expand(-1, -1, bottleneck.shape[2], bottleneck.shape[3])
+        x = self.bottleneck(torch.cat([bottleneck, cam], dim=1))
+        for block, skip in zip(self.ups, reversed(skips), strict=True):
+            x = F.interpolate(x, scale_factor=2.0, mode="bilinear", align_corners=False)
+            x = block(torch.cat([x, skip], dim=1))
+        return image + torch.tanh(self.out(x))
+
+
+class ReshadeNet(nn.Module):
+    def __init__(self, cfg: NetConfig) -> None:
+        super().__init__()
+        self.cfg = cfg
+        self.encoder = Encoder(cfg)
+        self.decoder = Decoder(cfg)
+        # He initialisation for LeakyReLU keeps activations from fading over the ~20 layers
+        # between the camera features and the output (PyTorch's default init shrinks them,
+        # and the camera's influence with them).
+        for m in self.modules():
+            if isinstance(m, (nn.Conv2d, nn.Linear)) and m is not self.decoder.out:
+                nn.init.kaiming_normal_(m.weight, a=NEG_SLOPE, nonlinearity="leaky_relu")
+                nn.init.zeros_(m.bias)
+
+    def forward(
+        self, image: torch.Tensor, disparity: torch.Tensor, camera: torch.Tensor
+    ) -> torch.Tensor:
+        bottleneck, skips = self.encoder(image, disparity)
+        return self.decoder(image, skips, bottleneck, camera)
+
+
+# Flat-signature wrappers for ONNX export as two graphs. Tensor names for the manifest:
+SKIP_NAMES = tuple(f"skip{i}" for i in range(LEVELS - 1))  # skip0 is full resolution
+
+
+class EncoderGraph(nn.Module):
+    """image [1,3,H,W], disparity [1,1,H,W] -> bottleneck, skip0..skip4."""
+
+    input_names = ("image", "disparity")
+    output_names = ("bottleneck",) + SKIP_NAMES
+
+    def __init__(self, net: ReshadeNet) -> None:
+        super().__init__()
+        self.encoder = net.encoder
+
+    def forward(self, image: torch.Tensor, disparity: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        bottleneck, skips = self.encoder(image, disparity)
+        return (bottleneck, *skips)
+
+
+class DecoderGraph(nn.Module):
+    """image, bottleneck, skip0..skip4, camera [1,3] -> reshaded [1,3,H,W]."""
+
+    input_names = ("image", "bottleneck") + SKIP_NAMES + ("camera",)
+    output_names = ("reshaded",)
+
+    def __init__(self, net: ReshadeNet) -> None:
+        super().__init__()
+        self.decoder = net.decoder
+
+    def forward(self, image: torch.Tensor, bottleneck: torch.Tensor, *rest: torch.Tensor):
+        *skips, camera = rest
+        return self.decoder(image, list(skips), bottleneck, camera)
+
+
+def count_parameters(module: nn.Module) -> int:
+    return sum(p.numel() for p in module.parameters())
+
+
+def conv_flops(net: ReshadeNet, height: int, width: int) -> dict[str, float]:
+    """Multiply-adds x 2 of the convolutions (the bulk of the cost) for one view."""
+    totals = {"encoder": 0.0, "decoder": 0.0}
+
+    def hook_for(part: str):
+        def hook(mod: nn.Conv2d, _inp, out: torch.Tensor) -> None:
+            k = mod.kernel_size[0] * mod.kernel_size[1]
+            totals[part] += 2.0 * out.numel() * mod.in_channels * k
+
+        return hook
+
+    handles = [
+        m.register_forward_hook(hook_for(part))
+        for part, sub in (("encoder", net.encoder), ("decoder", net.decoder))
+        for m in sub.modules()
+        if isinstance(m, nn.Conv2d)
+    ]
+    try:
+        with torch.no_grad():
+            net(
+                torch.zeros(1, 3, height, width),
+                torch.zeros(1, 1, height, width),
+                torch.zeros(1, 3),
+            )
+    finally:
+        for h in handles:
+            h.remove()
+    return totals

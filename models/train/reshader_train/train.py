@@ -1,0 +1,336 @@
+"""`reshader-train train`: the paper's training recipe (section 3.5), on one CPU or many GPUs.
+
+The same command runs single-process, or under `torchrun` with DistributedDataParallel
+(gloo on CPU, nccl on GPU; DistributedSampler shards the data). The run directory holds
+config.json, log.csv (training losses), val.csv (held-out PSNR), and checkpoint.pt, which
+a rerun of the same command resumes from.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import os
+import random
+import shlex
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.distributed as dist
+from torch.nn.parallel import DistributedDataParallel
+from torch.utils.data import DataLoader, DistributedSampler
+
+from .data import Augment, DatasetError, ReshadeDataset
+from .evaluate import masked_psnr, reshade
+from .features import CHOICES, FeatureNetError, load_feature_net
+from .losses import ReshadeLoss
+from .model import NetConfig, ReshadeNet, count_parameters, net_config
+
+CHECKPOINT = "checkpoint.pt"
+LOG_FIELDS = ("step", "lr", "loss", "l1", "vgg", "style", "steps_per_s", "elapsed_s")
+VAL_FIELDS = ("step", "psnr_input", "psnr_ours", "gain_db")
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--data", type=Path, required=True, help="training dataset folder")
+    p.add_argument("--val-data", type=Path, help="held-out folder for the periodic PSNR check")
+    p.add_argument("--run-dir", type=Path, required=True, help="config, logs and checkpoints")
+    p.add_argument("--size", default="lite", help="full | lite | six comma-separated widths")
+    p.add_argument("--steps", type=int, default=20000, help="total optimiser steps")
+    p.add_argument("--batch-size", type=int, default=4, help="per process")
+    p.add_argument("--crop", type=int, default=128, help="random square crop (paper: 384)")
+    p.add_argument("--lr", type=float, default=1e-4)
+    p.add_argument("--lr-final", type=float, default=1e-5)
+    p.add_argument(
+        "--lr-drop", type=float, default=0.6, help="fraction of --steps at --lr (paper: 300k/500k)"
+    )
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--workers", type=int, default=1, help="data loader processes per rank")
+    p.add_argument("--threads", type=int, default=0, help="torch threads per rank (0: default)")
+    p.add_argument("--device", default="auto", help="auto | cpu | cuda")
+    p.add_argument("--feature-net", choices=CHOICES, default="auto")
+    p.add_argument("--vgg-weights", help="torchvision VGG-19 state dict (the paper's network)")
+    p.add_argument("--checkpoint-every", type=int, default=500)
+    p.add_argument("--log-every", type=int, default=20)
+    p.add_argument("--val-every", type=int, default=1000)
+    p.add_argument("--val-examples", type=int, default=16)
+    p.add_argument("--limit", type=int, help="use only the first N training examples")
+    p.add_argument("--no-cache", action="store_true", help="decode EXRs every time")
+    p.add_argument("--no-progress", action="store_true", help="plain log lines instead of tqdm")
+
+
+def lr_at(step: int, args: argparse.Namespace) -> float:
+    return args.lr if step < int(args.lr_drop * args.steps) else args.lr_final
+
+
+@dataclass
+class Dist:
+    rank: int
+    world: int
+    device: torch.device
+
+    @property
+    def main(self) -> bool:
+        return self.rank == 0
+
+
+def setup_distributed(device: str) -> Dist:
+    world = int(os.environ.get("WORLD_SIZE", "1"))
+    rank = int(os.environ.get("RANK", "0"))
+    local = int(os.environ.get("LOCAL_RANK", "0"))
+    if device == "auto":
+        device = "cuda" if torch.cuda.is_available() else "cpu"
+    dev = torch.device(f"cuda:{local}" if device == "cuda" else device)
+    if dev.type == "cuda":
+        torch.cuda.set_device(dev)
+    if world > 1 and not dist.is_initialized():
+        dist.init_process_group(backend="nccl" if dev.type == "cuda" else "gloo")
+    return Dist(rank, world, dev)
+
+
+def seed_everything(seed: int) -> None:
+    random.seed(seed)
+    np.random.seed(seed % (2**32))
+    torch.manual_seed(seed)
+
+
+def atomic_write(path: Path, write) -> None:
+    tmp = path.with_name(f".{path.name}.tmp")
+    write(tmp)
+    os.replace(tmp, path)
+
+
+def append_csv(path: Path, fields: tuple[str, ...], row: dict) -> None:
+    new = not path.exists()
+    with open(path, "a", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=fields)
+        if new:
+            w.writeheader()
+        w.writerow({k: row[k] for k in fields})
+
+
+def load_resume(run_dir: Path, cfg: NetConfig, device: torch.device) -> dict | None:
+    path = run_dir / CHECKPOINT
+    if not path.exists():
+        return None
+    ckpt = torch.load(path, map_location=device, weights_only=False)
+    if NetConfig.from_json(ckpt["net_config"]) != cfg:
+        raise ValueError(
+            f"{path}: was trained with network {ckpt['net_config']}, not {cfg.to_json()}; "
+            "use another --run-dir or the same --size"
+        )
+    return ckpt
+
+
+def save_checkpoint(run_dir: Path, net: ReshadeNet, opt, step: int, meta: dict) -> None:
+    state = {
+        "model": net.state_dict(),
+        "optimizer": opt.state_dict(),
+        "step": step,
+        "net_config": net.cfg.to_json(),
+        **meta,
+    }
+    atomic_write(run_dir / CHECKPOINT, lambda tmp: torch.save(state, tmp))
+
+
+@torch.no_grad()
+def validate(net: ReshadeNet, val: ReshadeDataset, count: int, device: torch.device) -> dict:
+    net.eval()
+    pin, pout = [], []
+    for i in range(min(count, len(val))):
+        s = {k: v.to(device) for k, v in val[i].items()}
+        ours = reshade(net, s["image"], s["disparity"], s["camera"])
+        pin.append(masked_psnr(s["image"], s["target"], s["mask"]))
+        pout.append(masked_psnr(ours, s["target"], s["mask"]))
+    net.train()
+    return {
+        "psnr_input": float(np.mean(pin)),
+        "psnr_ours": float(np.mean(pout)),
+        "gain_db": float(np.mean(np.subtract(pout, pin))),
+    }
+
+
+def _reduce_mean(parts: dict[str, float], d: Dist) -> dict[str, float]:
+    if d.world == 1:
+        return parts
+    keys = sorted(parts)
+    t = torch.tensor([parts[k] for k in keys], dtype=torch.float64, device=d.device)
+    dist.all_reduce(t)
+    return {k: float(v) / d.world for k, v in zip(keys, t.tolist(), strict=True)}
+
+
+def train(args: argparse.Namespace) -> ReshadeNet:
+    """Runs (or resumes) training and returns the trained network (unwrapped)."""
+    d = setup_distributed(args.device)
+    if args.threads > 0:
+        torch.set_num_threads(args.threads)
+    cfg = net_config(args.size)
+    seed_everything(args.seed + d.rank)
+    run_dir: Path = args.run_dir
+    if d.main:
+        run_dir.mkdir(parents=True, exist_ok=True)
+
+    feature_net = load_feature_net(args.feature_net, args.vgg_weights).to(d.device)
+    criterion = ReshadeLoss(feature_net)
+    dataset = ReshadeDataset(
+        args.data, crop=args.crop, augment=Augment(), cache=not args.no_cache, limit=args.limit
+    )
+    sampler = DistributedSampler(
+        dataset, num_replicas=d.world, rank=d.rank, shuffle=True, seed=args.seed, drop_last=True
+    )
+    if len(sampler) < args.batch_size:
+        raise DatasetError(
+            f"{args.data}: {len(dataset)} examples give {len(sampler)} per process, fewer than "
+            f"--batch-size {args.batch_size}"
+        )
+    loader = DataLoader(
+        dataset,
+        batch_size=args.batch_size,
+        sampler=sampler,
+        drop_last=True,
+        num_workers=args.workers,
+        persistent_workers=args.workers > 0,
+        pin_memory=d.device.type == "cuda",
+    )
+    val = (
+        ReshadeDataset(args.val_data, crop=None, augment=None) if args.val_data and d.main else None
+    )
+
+    net = ReshadeNet(cfg).to(d.device)
+    opt = torch.optim.Adam(net.parameters(), lr=args.lr)
+    step = 0
+    ckpt = load_resume(run_dir, cfg, d.device)
+    if ckpt is not None:
+        net.load_state_dict(ckpt["model"])
+        opt.load_state_dict(ckpt["optimizer"])
+        step = int(ckpt["step"])
+        if ckpt.get("feature_net") != feature_net.ident and d.main:
+            print(
+                f"warning: resuming a run trained with {ckpt.get('feature_net')} using "
+                f"{feature_net.ident}",
+                file=sys.stderr,
+            )
+    model = (
+        DistributedDataParallel(
+            net, device_ids=[d.device.index] if d.device.type == "cuda" else None
+        )
+        if d.world > 1
+        else net
+    )
+
+    meta = {
+        "feature_net": feature_net.ident,
+        "args": {
+            k: str(v) if isinstance(v, Path) else v
+            for k, v in vars(args).items()
+            if not k.startswith("_")
+        },
+        "world_size": d.world,
+        "train_examples": len(dataset),
+    }
+    if d.main:
+        config = {
+            **meta,
+            "command": " ".join(shlex.quote(a) for a in sys.argv),
+            "net_config": cfg.to_json(),
+            "parameters": count_parameters(net),
+            "resumed_from_step": step,
+            "torch": torch.__version__,
+            "device": str(d.device),
+            "global_batch": args.batch_size * d.world,
+        }
+        atomic_write(
+            run_dir / "config.json", lambda tmp: tmp.write_text(json.dumps(config, indent=2))
+        )
+        print(
+            f"training {args.size} ({count_parameters(net) / 1e6:.2f} M parameters) on "
+            f"{len(dataset)} examples, {d.world} process(es) on {d.device}, perceptual "
+            f"features: {feature_net.ident}; steps {step} -> {args.steps}",
+            file=sys.stderr,
+        )
+
+    progress = None
+    if d.main and not args.no_progress:
+        from tqdm import tqdm
+
+        progress = tqdm(total=args.steps, initial=step, dynamic_ncols=True, smoothing=0.05)
+    t0 = time.time()
+    t_last, step_last = t0, step
+    net.train()
+    epoch = step // max(1, len(loader))
+    while step < args.steps:
+        sampler.set_epoch(epoch)
+        for batch in loader:
+            if step >= args.steps:
+                break
+            lr = lr_at(step, args)
+            for group in opt.param_groups:
+                group["lr"] = lr
+            b = {k: v.to(d.device, non_blocking=True) for k, v in batch.items()}
+            pred = model(b["image"], b["disparity"], b["camera"])
+            loss, parts = criterion(pred, b["target"], b["mask"])
+            if not torch.isfinite(loss):
+                raise FloatingPointError(f"loss is {float(loss)} at step {step}: {parts}")
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            opt.step()
+            step += 1
+            if step % args.log_every == 0 or step == args.steps:
+                parts = _reduce_mean(parts, d)
+                if d.main:
+                    now = time.time()
+                    rate = (step - step_last) / max(now - t_last, 1e-9)
+                    t_last, step_last = now, step
+                    append_csv(
+                        run_dir / "log.csv",
+                        LOG_FIELDS,
+                        {
+                            **parts,
+                            "step": step,
+                            "lr": lr,
+                            "steps_per_s": round(rate, 4),
+                            "elapsed_s": round(now - t0, 1),
+                        },
+                    )
+                    if progress is None:
+                        print(
+                            f"step {step}/{args.steps} loss {parts['loss']:.4f} "
+                            f"({rate:.2f} steps/s)",
+                            file=sys.stderr,
+                        )
+            if progress is not None:
+                progress.update(1)
+                progress.set_postfix(loss=f"{parts['loss']:.4f}", lr=f"{lr:.0e}")
+            if d.main and (step % args.checkpoint_every == 0 or step == args.steps):
+                save_checkpoint(run_dir, net, opt, step, meta)
+            if val is not None and (step % args.val_every == 0 or step == args.steps):
+                v = validate(net, val, args.val_examples, d.device)
+                append_csv(run_dir / "val.csv", VAL_FIELDS, {**v, "step": step})
+                if progress is not None:
+                    progress.write(
+                        f"step {step}: val PSNR input {v['psnr_input']:.2f} ours "
+                        f"{v['psnr_ours']:.2f} ({v['gain_db']:+.2f} dB)"
+                    )
+        epoch += 1
+    if progress is not None:
+        progress.close()
+    if d.world > 1:
+        dist.barrier()
+    return net
+
+
+def run(args: argparse.Namespace) -> int:
+    try:
+        train(args)
+    except (DatasetError, FeatureNetError, ValueError) as err:
+        print(f"train: {err}", file=sys.stderr)
+        return 2
+    finally:
+        if dist.is_initialized():
+            dist.destroy_process_group()
+    return 0

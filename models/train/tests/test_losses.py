@@ -1,0 +1,102 @@
+import h5py
+import pytest
+import torch
+
+from reshader_train.features import (
+    VGG19_CFG,
+    FeatureNetError,
+    _vgg_stack,
+    hed_weights_path,
+    load_feature_net,
+    load_hed_vgg16,
+    load_vgg19,
+)
+from reshader_train.losses import ReshadeLoss, gram
+
+
+@pytest.fixture(scope="module")
+def hed():
+    return load_hed_vgg16()
+
+
+def test_hed_features_are_deterministic_and_non_trivial(hed):
+    g = torch.Generator().manual_seed(0)
+    a = torch.rand(1, 3, 32, 32, generator=g)
+    b = torch.rand(1, 3, 32, 32, generator=g)
+    fa = hed(a)
+    assert fa.shape == (1, 512, 4, 4)  # conv4_3 at 1/8
+    assert torch.equal(fa, hed(a))
+    assert fa.std() > 1e-3
+    assert (fa - hed(b)).abs().mean() > 0.05 * fa.abs().mean()
+    assert "hed-vgg16" in hed.ident and "conv4_3" in hed.ident
+    assert not any(p.requires_grad for p in hed.parameters())
+
+
+def test_hed_kernels_are_mapped_like_keras(hed):
+    # conv1_1 at one pixel, computed by hand from the HDF5 kernel (kh, kw, in, out), must
+    # equal the torch layer's output: checks the transpose and the BGR/mean convention.
+    with h5py.File(hed_weights_path(), "r") as f:
+        kernel = torch.from_numpy(f["block1/layers/conv2d/vars/0"][()])
+        bias = torch.from_numpy(f["block1/layers/conv2d/vars/1"][()])
+    rgb = torch.rand(1, 3, 8, 8, generator=torch.Generator().manual_seed(3))
+    caffe = rgb.flip(1) * 255 - torch.tensor([104.00699, 116.66877, 122.67892]).view(1, 3, 1, 1)
+    patch = caffe[0, :, 3:6, 4:7].permute(1, 2, 0)  # (3, 3, in) around pixel (4, 5)
+    manual = torch.einsum("hwi,hwio->o", patch, kernel) + bias
+    torch_out = hed.features[0](caffe)[0, :, 4, 5]
+    assert torch.allclose(manual, torch_out, atol=1e-3)
+
+
+def test_vgg19_state_dict_loads_and_bad_ones_are_refused(tmp_path):
+    stack = _vgg_stack(VGG19_CFG)
+    state = {f"features.{k}": v for k, v in stack.state_dict().items()}
+    good = tmp_path / "vgg19-test.pth"
+    torch.save(state, good)
+    net = load_vgg19(good)
+    assert "vgg19" in net.ident and "conv4_4" in net.ident
+    assert net(torch.rand(1, 3, 16, 16)).shape == (1, 512, 2, 2)
+    state["features.0.weight"] = torch.zeros(64, 3, 5, 5)
+    bad = tmp_path / "bad.pth"
+    torch.save(state, bad)
+    with pytest.raises(FeatureNetError, match="bad.pth.*features.0.weight"):
+        load_vgg19(bad)
+    with pytest.raises(FeatureNetError, match="not found"):
+        load_vgg19(tmp_path / "missing.pth")
+
+
+def test_feature_net_choice(tmp_path, monkeypatch):
+    monkeypatch.setenv("TORCH_HOME", str(tmp_path))
+    with pytest.raises(FeatureNetError, match="--vgg-weights"):
+        load_feature_net("vgg19")
+    assert "hed-vgg16" in load_feature_net("auto").ident
+    (tmp_path / "hub/checkpoints").mkdir(parents=True)
+    stack = _vgg_stack(VGG19_CFG)
+    torch.save(
+        {f"features.{k}": v for k, v in stack.state_dict().items()},
+        tmp_path / "hub/checkpoints/vgg19-dcbb9e9d.pth",
+    )
+    assert "vgg19" in load_feature_net("auto").ident
+
+
+def test_gram_of_known_features():
+    f = torch.tensor([[[[1.0, 2.0]], [[3.0, 4.0]]]])  # (1, 2, 1, 2)
+    expected = torch.tensor([[[5.0, 11.0], [11.0, 25.0]]]) / 4
+    assert torch.allclose(gram(f), expected)
+
+
+def test_loss_zero_on_match_masked_and_differentiable(hed):
+    loss_fn = ReshadeLoss(hed)
+    g = torch.Generator().manual_seed(1)
+    target = torch.rand(2, 3, 32, 32, generator=g)
+    mask = torch.ones(2, 1, 32, 32)
+    mask[..., :, 16:] = 0
+    same, parts = loss_fn(target.clone(), target, mask)
+    assert float(same) == 0.0 and parts["l1"] == 0.0
+    hidden = target.clone()
+    hidden[..., :, 16:] = 0.0  # differs from target only where the mask is 0
+    assert float(loss_fn(hidden, target, mask)[0]) == 0.0
+    pred = (target + 0.1 * torch.randn(2, 3, 32, 32, generator=g)).requires_grad_()
+    total, parts = loss_fn(pred, target, mask)
+    assert parts["l1"] > 0 and parts["vgg"] > 0 and parts["style"] > 0
+    total.backward()
+    assert pred.grad.abs().sum() > 0
+    assert pred.grad[..., :, 16:].abs().sum() == 0  # masked pixels get no gradient

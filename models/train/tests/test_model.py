@@ -1,0 +1,99 @@
+import math
+
+import pytest
+import torch
+
+from reshader_train.model import (
+    SIZES,
+    DecoderGraph,
+    EncoderGraph,
+    NetConfig,
+    ReshadeNet,
+    conv_flops,
+    count_parameters,
+    encode_disparity,
+    net_config,
+)
+
+TINY = net_config("4,8,8,16,16,16")
+
+
+def inputs(h=32, w=64, seed=0):
+    g = torch.Generator().manual_seed(seed)
+    return torch.rand(1, 3, h, w, generator=g), torch.rand(1, 1, h, w, generator=g)
+
+
+def test_disparity_encoding_channels_and_values():
+    d = torch.full((1, 1, 2, 2), 0.5)
+    enc = encode_disparity(d)
+    assert enc.shape == (1, 11, 2, 2)
+    expected = [0.5]
+    for i in range(5):
+        expected += [math.sin(2**i * 0.5), math.cos(2**i * 0.5)]
+    assert torch.allclose(enc[0, :, 0, 0], torch.tensor(expected))
+
+
+def test_output_shape_and_alignment_check():
+    net = ReshadeNet(TINY)
+    image, disp = inputs()
+    assert net(image, disp, torch.zeros(1, 3)).shape == (1, 3, 32, 64)
+    with pytest.raises(ValueError, match="multiples of 32"):
+        net(image[..., :48], disp[..., :48], torch.zeros(1, 3))
+
+
+def test_starts_near_identity():
+    torch.manual_seed(0)
+    net = ReshadeNet(TINY).eval()
+    image, disp = inputs()
+    out = net(image, disp, torch.tensor([[0.2, 0.0, 0.1]]))
+    assert (out - image).abs().max() < 0.02
+
+
+def test_camera_changes_output_and_is_deterministic():
+    torch.manual_seed(0)
+    net = ReshadeNet(TINY).eval()
+    torch.nn.init.normal_(net.decoder.out.weight, std=0.1)
+    image, disp = inputs()
+    a = net(image, disp, torch.tensor([[0.3, 0.0, 0.0]]))
+    b = net(image, disp, torch.tensor([[-0.3, 0.0, 0.0]]))
+    assert (a - b).abs().max() > 1e-4
+    assert torch.equal(a, net(image, disp, torch.tensor([[0.3, 0.0, 0.0]])))
+
+
+def test_split_graphs_match_single_network():
+    torch.manual_seed(1)
+    net = ReshadeNet(TINY).eval()
+    torch.nn.init.normal_(net.decoder.out.weight, std=0.1)
+    image, disp = inputs()
+    cam = torch.tensor([[0.1, -0.2, 0.05]])
+    enc_out = EncoderGraph(net)(image, disp)
+    assert len(enc_out) == len(EncoderGraph.output_names)
+    assert enc_out[0].shape[-2:] == (1, 2)  # bottleneck at H/32
+    split = DecoderGraph(net)(image, *enc_out, cam)
+    assert torch.allclose(split, net(image, disp, cam), atol=1e-6)
+
+
+def test_named_sizes():
+    full = count_parameters(ReshadeNet(SIZES["full"]))
+    lite = count_parameters(ReshadeNet(SIZES["lite"]))
+    assert 18e6 < full < 27e6
+    assert lite < full / 10
+    assert SIZES["full"].widths == (32, 64, 128, 256, 512, 512)
+
+
+def test_flops_scale_with_pixels():
+    net = ReshadeNet(TINY)
+    small = conv_flops(net, 32, 32)
+    big = conv_flops(net, 64, 64)
+    assert small["encoder"] > 0 and small["decoder"] > 0
+    assert big["encoder"] == pytest.approx(4 * small["encoder"])
+    # The first encoder conv alone: 14 -> 4 channels, 3x3, over 32x32 pixels.
+    assert small["encoder"] > 2 * 14 * 4 * 9 * 32 * 32
+
+
+def test_config_parsing_and_json_round_trip():
+    assert NetConfig.from_json(SIZES["lite"].to_json()) == SIZES["lite"]
+    with pytest.raises(ValueError, match="unknown network size"):
+        net_config("huge")
+    with pytest.raises(ValueError):
+        net_config("4,8")

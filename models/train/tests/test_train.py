@@ -1,0 +1,120 @@
+import argparse
+import csv
+import json
+
+import pytest
+import torch
+
+from reshader_train import cli
+from reshader_train.synthetic import write_dataset
+from reshader_train.train import lr_at, train
+
+TINY = "4,8,8,16,16,16"
+
+
+@pytest.fixture(scope="module")
+def data(tmp_path_factory):
+    root = tmp_path_factory.mktemp("ds")
+    return write_dataset(root / "train", 4, 32, 32, seed=0), write_dataset(
+        root / "val", 2, 32, 32, seed=1
+    )
+
+
+def train_args(data, run_dir, steps, **kw):
+    parser = argparse.ArgumentParser()
+    from reshader_train.train import add_arguments
+
+    add_arguments(parser)
+    argv = [
+        "--data",
+        str(data[0]),
+        "--val-data",
+        str(data[1]),
+        "--run-dir",
+        str(run_dir),
+        "--size",
+        TINY,
+        "--steps",
+        str(steps),
+        "--batch-size",
+        "2",
+        "--crop",
+        "32",
+        "--workers",
+        "0",
+        "--threads",
+        "1",
+        "--log-every",
+        "1",
+        "--checkpoint-every",
+        "2",
+        "--val-every",
+        "3",
+        "--no-progress",
+    ]
+    for k, v in kw.items():
+        argv += [f"--{k.replace('_', '-')}", str(v)]
+    return parser.parse_args(argv)
+
+
+def read_csv(path):
+    with open(path) as f:
+        return list(csv.DictReader(f))
+
+
+def test_lr_schedule_scales_with_run_length():
+    args = argparse.Namespace(lr=1e-4, lr_final=1e-5, lr_drop=0.6, steps=100)
+    assert lr_at(0, args) == 1e-4 and lr_at(59, args) == 1e-4 and lr_at(60, args) == 1e-5
+    args.steps = 10
+    assert lr_at(5, args) == 1e-4 and lr_at(6, args) == 1e-5
+
+
+def test_train_writes_run_dir_and_resumes(data, tmp_path):
+    run = tmp_path / "run"
+    torch.manual_seed(0)
+    net = train(train_args(data, run, 4))
+    ckpt = torch.load(run / "checkpoint.pt", weights_only=False)
+    assert ckpt["step"] == 4
+    assert "hed-vgg16" in ckpt["feature_net"]
+    config = json.loads((run / "config.json").read_text())
+    assert config["net_config"]["widths"] == [4, 8, 8, 16, 16, 16]
+    assert config["feature_net"] == ckpt["feature_net"]
+    log = read_csv(run / "log.csv")
+    assert [int(r["step"]) for r in log] == [1, 2, 3, 4]
+    assert all(float(r["loss"]) > 0 for r in log)
+    assert [int(r["step"]) for r in read_csv(run / "val.csv")] == [3, 4]
+    trained = {k: v.clone() for k, v in net.state_dict().items()}
+    assert all(torch.equal(trained[k], v) for k, v in ckpt["model"].items())
+
+    net2 = train(train_args(data, run, 6))
+    assert torch.load(run / "checkpoint.pt", weights_only=False)["step"] == 6
+    assert [int(r["step"]) for r in read_csv(run / "log.csv")] == [1, 2, 3, 4, 5, 6]
+    assert json.loads((run / "config.json").read_text())["resumed_from_step"] == 4
+    assert any(not torch.equal(trained[k], v) for k, v in net2.state_dict().items())
+
+
+def test_resume_refuses_another_network(data, tmp_path):
+    run = tmp_path / "run"
+    train(train_args(data, run, 1))
+    with pytest.raises(ValueError, match="use another --run-dir"):
+        train(train_args(data, run, 2, size="4,8,8,16,16,32"))
+
+
+def test_cli_reports_bad_data(tmp_path, capsys):
+    code = cli.main(
+        [
+            "train",
+            "--data",
+            str(tmp_path / "none"),
+            "--run-dir",
+            str(tmp_path / "r"),
+            "--size",
+            TINY,
+            "--steps",
+            "1",
+            "--workers",
+            "0",
+        ]
+    )
+    assert code == 2
+    assert "none: dataset folder does not exist" in capsys.readouterr().err

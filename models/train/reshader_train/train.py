@@ -28,7 +28,7 @@ from torch.utils.data import DataLoader, DistributedSampler
 from .data import Augment, DatasetError, ReshadeDataset
 from .evaluate import masked_psnr, reshade
 from .features import CHOICES, FeatureNetError, load_feature_net
-from .losses import ReshadeLoss
+from .losses import ReshadeLoss, bf16_is_fast
 from .model import NetConfig, ReshadeNet, count_parameters, net_config
 
 CHECKPOINT = "checkpoint.pt"
@@ -55,6 +55,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--device", default="auto", help="auto | cpu | cuda")
     p.add_argument("--feature-net", choices=CHOICES, default="auto")
     p.add_argument("--vgg-weights", help="torchvision VGG-19 state dict (the paper's network)")
+    p.add_argument(
+        "--feature-precision",
+        choices=("auto", "float32", "bfloat16"),
+        default="auto",
+        help="perceptual network precision (auto: bfloat16 where the device runs it fast)",
+    )
     p.add_argument("--checkpoint-every", type=int, default=500)
     p.add_argument("--log-every", type=int, default=20)
     p.add_argument("--val-every", type=int, default=1000)
@@ -176,7 +182,11 @@ def train(args: argparse.Namespace) -> ReshadeNet:
         run_dir.mkdir(parents=True, exist_ok=True)
 
     feature_net = load_feature_net(args.feature_net, args.vgg_weights).to(d.device)
-    criterion = ReshadeLoss(feature_net)
+    bf16 = args.feature_precision == "bfloat16" or (
+        args.feature_precision == "auto" and bf16_is_fast(d.device)
+    )
+    feature_dtype = torch.bfloat16 if bf16 else torch.float32
+    criterion = ReshadeLoss(feature_net, feature_dtype=feature_dtype)
     dataset = ReshadeDataset(
         args.data, crop=args.crop, augment=Augment(), cache=not args.no_cache, limit=args.limit
     )
@@ -225,6 +235,7 @@ def train(args: argparse.Namespace) -> ReshadeNet:
 
     meta = {
         "feature_net": feature_net.ident,
+        "feature_precision": str(feature_dtype).removeprefix("torch."),
         "args": {
             k: str(v) if isinstance(v, Path) else v
             for k, v in vars(args).items()

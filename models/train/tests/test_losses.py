@@ -100,3 +100,16 @@ def test_loss_zero_on_match_masked_and_differentiable(hed):
     total.backward()
     assert pred.grad.abs().sum() > 0
     assert pred.grad[..., :, 16:].abs().sum() == 0  # masked pixels get no gradient
+
+
+def test_bfloat16_features_track_float32(hed):
+    g = torch.Generator().manual_seed(2)
+    target = torch.rand(1, 3, 32, 32, generator=g)
+    pred = (target + 0.1 * torch.randn(1, 3, 32, 32, generator=g)).requires_grad_()
+    mask = torch.ones(1, 1, 32, 32)
+    _, p32 = ReshadeLoss(hed)(pred, target, mask)
+    total, p16 = ReshadeLoss(hed, feature_dtype=torch.bfloat16)(pred, target, mask)
+    assert p16["vgg"] == pytest.approx(p32["vgg"], rel=0.1)
+    assert p16["style"] == pytest.approx(p32["style"], rel=0.1)
+    total.backward()
+    assert pred.grad.abs().sum() > 0

@@ -83,6 +83,16 @@ def list_examples(root: Path) -> list[Path]:
     return found
 
 
+def scene_name(meta: dict) -> str:
+    """A short label to group evaluation results: the scene file's name or the procedural kind."""
+    scene = meta.get("scene")
+    if isinstance(scene, dict):
+        if scene.get("file"):
+            return Path(str(scene["file"])).stem
+        return str(scene.get("kind", "all"))
+    return str(scene) if scene else "all"
+
+
 @dataclass
 class Example:
     """One decoded example; HDR colours are float16 to halve the cache."""
@@ -116,7 +126,7 @@ def load_example(folder: Path) -> Example:
             raise DatasetError(
                 f"{folder / name}: size {arr.shape[:2]} differs from input.exr {shape}"
             )
-    scene = str(meta.get("scene", meta.get("scene_kind", "all")))
+    scene = scene_name(meta)
     return Example(
         name=folder.name,
         input=np.nan_to_num(image).astype(np.float16),

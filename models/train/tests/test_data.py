@@ -135,3 +135,12 @@ def test_loader_with_a_worker_gives_random_crops(root):
     assert batch["camera"].shape == (4, 3)
     again = next(iter(DataLoader(ds, batch_size=4, num_workers=1)))
     assert not torch.equal(batch["image"], again["image"])  # new epoch seeds, new crops
+
+
+def test_scene_names_for_grouping():
+    from reshader_train.data import scene_name
+
+    assert scene_name({"scene": {"kind": "room", "max_depth": 6}}) == "room"
+    assert scene_name({"scene": {"kind": "file", "file": "/x/veach-ajar.xml"}}) == "veach-ajar"
+    assert scene_name({"scene": "bathroom"}) == "bathroom"
+    assert scene_name({}) == "all"

@@ -10,6 +10,12 @@ import sys
 
 # (name, module, one-line help). Each module defines add_arguments(parser) and run(args).
 COMMANDS = [
+    (
+        "render",
+        "reshader_train.render.command",
+        "render input/reshaded dataset examples (Mitsuba 3)",
+    ),
+    ("sheet", "reshader_train.render.sheet", "contact sheet PNG of a rendered dataset"),
     ("train", "reshader_train.train", "train the reshading network (single process or torchrun)"),
     ("evaluate", "reshader_train.evaluate", "PSNR/SSIM of input vs reshaded on held-out data"),
 ]

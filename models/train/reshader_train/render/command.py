@@ -1,0 +1,129 @@
+"""`reshader-train render`: render input/reshaded dataset examples with Mitsuba 3."""
+
+import os
+import statistics
+import sys
+import time
+
+from .example import RenderSettings, example_id, is_complete, render_example
+
+
+def _size(text: str) -> tuple[int, int]:
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise ValueError(f"--size {text!r}: expected WIDTHxHEIGHT, e.g. 256x192") from None
+    if w < 8 or h < 8:
+        raise ValueError(f"--size {text!r}: width and height must be at least 8")
+    return w, h
+
+
+def _shard(text: str) -> tuple[int, int]:
+    try:
+        i, n = (int(v) for v in text.split("/"))
+    except ValueError:
+        raise ValueError(f"--shard {text!r}: expected I/N, e.g. 3/16") from None
+    if not (n >= 1 and 0 <= i < n):
+        raise ValueError(f"--shard {text!r}: need 0 <= I < N")
+    return i, n
+
+
+def add_arguments(parser) -> None:
+    parser.add_argument("--out", required=True, help="dataset folder (created if missing)")
+    parser.add_argument(
+        "--scenes",
+        default="procedural",
+        help="'procedural' (default) or a Mitsuba 3 scene file (.xml)",
+    )
+    parser.add_argument("--count", type=int, required=True, help="examples in the dataset")
+    parser.add_argument("--seed", type=int, default=0, help="dataset seed (default 0)")
+    parser.add_argument("--size", default="256x192", help="WIDTHxHEIGHT (default 256x192)")
+    parser.add_argument("--spp", type=int, default=64, help="samples per pixel (default 64)")
+    parser.add_argument("--shard", default="0/1", help="render only indices i, i+n, ... (I/N)")
+    parser.add_argument("--threads", type=int, default=None, help="Dr.Jit threads (default all)")
+    parser.add_argument(
+        "--radius", default="0.1,0.3", help="novel camera shell radii MIN,MAX (default 0.1,0.3)"
+    )
+    parser.add_argument(
+        "--randomize-materials",
+        action="store_true",
+        help="scene files: replace every material by a random one per example",
+    )
+    parser.add_argument(
+        "--orbs", type=int, default=None, help="scene files: add this many random emissive orbs"
+    )
+
+
+def _source(args):
+    from .sources import ProceduralSource, SceneFileSource
+
+    if args.scenes == "procedural":
+        if args.randomize_materials or args.orbs is not None:
+            raise ValueError("--randomize-materials and --orbs apply to scene files only")
+        return ProceduralSource()
+    return SceneFileSource(args.scenes, args.randomize_materials, args.orbs or 0)
+
+
+def _settings(args) -> RenderSettings:
+    width, height = _size(args.size)
+    try:
+        r_min, r_max = (float(v) for v in args.radius.split(","))
+    except ValueError:
+        raise ValueError(f"--radius {args.radius!r}: expected MIN,MAX, e.g. 0.1,0.3") from None
+    if not 0 <= r_min <= r_max:
+        raise ValueError(f"--radius {args.radius!r}: need 0 <= MIN <= MAX")
+    if args.spp < 1 or args.count < 0:
+        raise ValueError("--spp must be >= 1 and --count >= 0")
+    return RenderSettings(width, height, args.spp, r_min, r_max)
+
+
+def summarize(seconds: list[float], skipped: int, failed: list) -> str:
+    lines = [f"rendered {len(seconds)} examples, skipped {skipped} already complete"]
+    if seconds:
+        lines.append(
+            f"seconds per example: mean {statistics.mean(seconds):.2f}, "
+            f"median {statistics.median(seconds):.2f}, min {min(seconds):.2f}, "
+            f"max {max(seconds):.2f}, total {sum(seconds):.0f}"
+        )
+    if failed:
+        lines.append(f"FAILED {len(failed)}: " + ", ".join(f"{i} ({e})" for i, e in failed[:10]))
+    return "\n".join(lines)
+
+
+def run(args) -> int:
+    from tqdm import tqdm
+
+    from .mitsuba_env import load_mitsuba
+
+    try:
+        settings = _settings(args)
+        shard, shards = _shard(args.shard)
+        source = _source(args)
+    except (ValueError, FileNotFoundError) as err:
+        print(f"reshader-train render: {err}", file=sys.stderr)
+        return 2
+    mi = load_mitsuba(args.threads)
+    os.makedirs(args.out, exist_ok=True)
+    indices = range(shard, args.count, shards)
+    todo = [i for i in indices if not is_complete(args.out, example_id(args.seed, i))]
+    skipped = len(indices) - len(todo)
+    print(
+        f"render: {source.name} -> {args.out}, seed {args.seed}, shard {shard}/{shards}: "
+        f"{len(todo)} to render, {skipped} already complete; "
+        f"{settings.width}x{settings.height} at {settings.spp} spp",
+        flush=True,
+    )
+    seconds, failed = [], []
+    bar = tqdm(todo, unit="ex", dynamic_ncols=True, mininterval=5)
+    for index in bar:
+        start = time.perf_counter()
+        try:
+            render_example(mi, source, args.out, args.seed, index, settings)
+        except RuntimeError as err:  # one bad example must not stop a long job
+            failed.append((index, str(err).splitlines()[0]))
+            print(f"example {index} failed: {err}", file=sys.stderr, flush=True)
+            continue
+        seconds.append(time.perf_counter() - start)
+        bar.set_postfix(s_per_ex=f"{statistics.mean(seconds):.1f}")
+    print(summarize(seconds, skipped, failed), flush=True)
+    return 1 if failed else 0

@@ -1,0 +1,208 @@
+"""One dataset example: choose cameras, render the four images, write the folder atomically.
+
+Layout of `<out>/<id>/` (the training toolchain reads exactly this):
+  input.exr, reshaded.exr, novel.exr  RGB float32 linear HDR
+  depth.exr                          1 channel float32 z-depth of the input view (inf: sky)
+  mask.png                           8-bit L, 255 valid / 0 invalid
+  meta.json                          cameras, novel offset, every scene parameter, timings
+"""
+
+import json
+import math
+import os
+import shutil
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from .cameras import Camera, look_at, sample_shell
+
+# A novel camera up to 0.3 away must stay in free space, so the input camera keeps this
+# clearance from all geometry.
+CLEARANCE = 0.35
+FILES = ("input.exr", "reshaded.exr", "novel.exr", "depth.exr", "mask.png", "meta.json")
+
+
+@dataclass(frozen=True)
+class RenderSettings:
+    width: int
+    height: int
+    spp: int
+    radius_min: float = 0.1
+    radius_max: float = 0.3
+
+
+def example_id(seed: int, index: int) -> str:
+    return f"{seed:05d}-{index:06d}"
+
+
+def example_rng(seed: int, index: int, stream: int = 0) -> np.random.Generator:
+    """Independent, reproducible random stream per (seed, index, purpose)."""
+    return np.random.default_rng([seed, index, stream])
+
+
+def _sphere_directions(n: int = 26) -> np.ndarray:
+    """Roughly uniform unit directions (Fibonacci sphere)."""
+    i = np.arange(n) + 0.5
+    phi = np.arccos(1 - 2 * i / n)
+    theta = math.pi * (1 + 5**0.5) * i
+    return np.stack([np.cos(theta) * np.sin(phi), np.cos(phi), np.sin(theta) * np.sin(phi)], -1)
+
+
+def camera_is_free(scene, position) -> bool:
+    """No geometry within CLEARANCE, and not enclosed by a nearby surface on all sides."""
+    from .integrator import trace_distances
+
+    t = trace_distances(scene, position, _sphere_directions())
+    return bool(t.min() > CLEARANCE and np.median(t) > 0.8)
+
+
+def view_hits(scene, camera: Camera, grid: int = 8) -> np.ndarray:
+    """Hit distances of a coarse grid of rays across the camera's view (inf: miss)."""
+    from .integrator import pixel_rays, trace_distances
+
+    small = Camera(
+        camera.world_from_camera,
+        grid,
+        max(2, grid * camera.height // camera.width),
+        camera.fov_x_deg,
+    )
+    directions, _ = pixel_rays(small)
+    return trace_distances(scene, camera.centre, directions)
+
+
+def choose_procedural_camera(rng, scene, params: dict, width: int, height: int) -> dict:
+    """Look at a random object from 1-4.5 units; the camera stands in free space."""
+    x0, x1, z0, z1, y0, y1 = params["bounds"]
+    margin = CLEARANCE + 0.1
+    for _ in range(200):
+        obj = params["objects"][int(rng.integers(len(params["objects"])))]
+        target = np.array(obj["position"]) + [0.0, 0.3, 0.0] + rng.normal(0, 0.1, 3)
+        dist, az = rng.uniform(1.0, 4.5), rng.uniform(0, 2 * math.pi)
+        el = math.radians(rng.uniform(-5, 40))
+        pos = target + dist * np.array(
+            [math.cos(el) * math.sin(az), math.sin(el), math.cos(el) * math.cos(az)]
+        )
+        if not (x0 + margin < pos[0] < x1 - margin and z0 + margin < pos[2] < z1 - margin):
+            continue
+        if not (0.3 < pos[1] < y1 - margin) or not camera_is_free(scene, pos):
+            continue
+        cam = {
+            "position": pos.tolist(),
+            "target": target.tolist(),
+            "fov_x_deg": float(rng.uniform(45, 75)),
+            "roll_deg": float(rng.normal(0, 3)),
+        }
+        hits = view_hits(scene, make_camera(cam, width, height))
+        if np.isfinite(hits).mean() >= 0.3 and np.median(hits) > 0.5:
+            return cam
+    raise RuntimeError("no free camera position with a view found in 200 tries")
+
+
+def make_camera(cam: dict, width: int, height: int) -> Camera:
+    m = look_at(cam["position"], cam["target"], cam.get("up", (0.0, 1.0, 0.0)), cam["roll_deg"])
+    return Camera(m, width, height, cam["fov_x_deg"])
+
+
+def _write_exr(mi, path: str, image: np.ndarray) -> None:
+    bitmap = mi.Bitmap(
+        np.ascontiguousarray(image, dtype=np.float32),
+        mi.Bitmap.PixelFormat.Y if image.shape[-1] == 1 else mi.Bitmap.PixelFormat.RGB,
+    )
+    bitmap.write(path)
+
+
+def _write_png(mi, path: str, image: np.ndarray) -> None:
+    mi.Bitmap(np.ascontiguousarray(image, dtype=np.uint8), mi.Bitmap.PixelFormat.Y).write(path)
+
+
+def render_views(
+    mi,
+    scene,
+    input_cam: Camera,
+    novel_cam: Camera,
+    spp: int,
+    seed: int,
+    max_depth: int,
+    timings: dict,
+) -> dict:
+    """input / reshaded / novel RGB, invalid fraction per pixel, and input depth."""
+    from .integrator import make_path, make_reshade, render_depth, render_image
+
+    path = make_path(max_depth)
+    out = {}
+    t = time.perf_counter()
+    out["input"] = render_image(scene, input_cam, spp, seed, path)[..., :3]
+    timings["input"] = time.perf_counter() - t
+    t = time.perf_counter()
+    reshade = make_reshade(novel_cam, input_cam, max_depth)
+    reshaded = render_image(scene, input_cam, spp, seed, reshade)
+    out["reshaded"], out["invalid"] = reshaded[..., :3], reshaded[..., 3]
+    out["z_primary"], out["z_rehit"] = reshaded[..., 4], reshaded[..., 5]
+    timings["reshaded"] = time.perf_counter() - t
+    t = time.perf_counter()
+    out["novel"] = render_image(scene, novel_cam, spp, seed, path)[..., :3]
+    timings["novel"] = time.perf_counter() - t
+    t = time.perf_counter()
+    out["depth"] = render_depth(scene, input_cam)
+    timings["depth"] = time.perf_counter() - t
+    return out
+
+
+def write_example(mi, out_dir: str, ex_id: str, views: dict, meta: dict) -> str:
+    """Write into `<out>/.tmp-<id>` and rename: a folder named <id> is always complete."""
+    final = os.path.join(out_dir, ex_id)
+    tmp = os.path.join(out_dir, f".tmp-{ex_id}")
+    shutil.rmtree(tmp, ignore_errors=True)
+    os.makedirs(tmp)
+    for name in ("input", "reshaded", "novel"):
+        _write_exr(mi, os.path.join(tmp, f"{name}.exr"), views[name])
+    _write_exr(mi, os.path.join(tmp, "depth.exr"), views["depth"][..., None])
+    mask = np.where(views["invalid"] > 0, 0, 255)[..., None]
+    _write_png(mi, os.path.join(tmp, "mask.png"), mask)
+    with open(os.path.join(tmp, "meta.json"), "w") as f:
+        json.dump(meta, f, indent=1)
+    if os.path.exists(final):  # an incomplete folder from an interrupted older layout
+        shutil.rmtree(final)
+    os.rename(tmp, final)
+    return final
+
+
+def is_complete(out_dir: str, ex_id: str) -> bool:
+    return os.path.isfile(os.path.join(out_dir, ex_id, "meta.json"))
+
+
+def render_example(mi, source, out_dir: str, seed: int, index: int, settings: RenderSettings):
+    """Render and write example (seed, index) of `source`; returns its meta dict."""
+    timings: dict = {}
+    start = time.perf_counter()
+    rng = example_rng(seed, index)
+    params, scene, cam = source.make(mi, rng, settings.width, settings.height)
+    timings["scene"] = time.perf_counter() - start
+    input_cam = make_camera(cam, settings.width, settings.height)
+    offset = sample_shell(rng, settings.radius_min, settings.radius_max)
+    novel_cam = input_cam.translated(offset)
+    render_seed = int(example_rng(seed, index, 1).integers(2**31))
+    views = render_views(
+        mi, scene, input_cam, novel_cam, settings.spp, render_seed, params["max_depth"], timings
+    )
+    timings["total"] = time.perf_counter() - start
+    ex_id = example_id(seed, index)
+    meta = {
+        "id": ex_id,
+        "seed": seed,
+        "index": index,
+        "width": settings.width,
+        "height": settings.height,
+        "spp": settings.spp,
+        "render_seed": render_seed,
+        "input_camera": input_cam.meta(),
+        "novel_camera": novel_cam.meta(),
+        "novel_offset": [float(v) for v in offset],
+        "invalid_fraction": float((views["invalid"] > 0).mean()),
+        "scene": {**params, "camera": cam},
+        "render_seconds": timings,
+    }
+    write_example(mi, out_dir, ex_id, views, meta)
+    return meta

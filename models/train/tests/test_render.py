@@ -1,0 +1,364 @@
+"""Checks of the reshading renderer (tiny renders; Mitsuba's LLVM variant)."""
+
+import json
+import math
+import os
+
+import numpy as np
+import pytest
+
+mitsuba_env = pytest.importorskip("reshader_train.render.mitsuba_env")
+
+from reshader_train.render.cameras import Camera, look_at, sample_shell  # noqa: E402
+
+SIZE = 32
+
+
+@pytest.fixture(scope="module")
+def mi():
+    return mitsuba_env.load_mitsuba(threads=2)
+
+
+@pytest.fixture(scope="module")
+def integ(mi):
+    from reshader_train.render import integrator
+
+    return integrator
+
+
+def diffuse(value):
+    return {"type": "diffuse", "reflectance": {"type": "rgb", "value": value}}
+
+
+def rectangle(mi, corners, bsdf):
+    """A two-triangle mesh through four corners (in order around the quad)."""
+    from reshader_train.render.meshes import mitsuba_mesh
+
+    verts = np.asarray(corners, dtype=float)
+    faces = np.array([[0, 1, 2], [0, 2, 3]], dtype=np.uint32)
+    uv = np.array([[0, 0], [1, 0], [1, 1], [0, 1]], dtype=float)
+    return mitsuba_mesh(mi, "quad", verts, faces, uv, bsdf)
+
+
+def render_pair(mi, integ, scene, camera, offset, spp=32, seed=3, max_depth=6):
+    novel = camera.translated(offset)
+    inp = integ.render_image(scene, camera, spp, seed, integ.make_path(max_depth))
+    resh = integ.render_image(
+        scene, camera, spp, seed, integ.make_reshade(novel, camera, max_depth)
+    )
+    return inp[..., :3], resh
+
+
+def diffuse_room(mi, bsdf_floor, bsdf_sphere):
+    return mi.load_dict(
+        {
+            "type": "scene",
+            "env": {"type": "constant", "radiance": {"type": "rgb", "value": 0.3}},
+            "floor": {
+                "type": "rectangle",
+                "bsdf": bsdf_floor,
+                "to_world": mi.ScalarTransform4f().rotate([1, 0, 0], -90).scale(4),
+            },
+            "sphere": {"type": "sphere", "center": [0, 0.5, 0], "radius": 0.5, "bsdf": bsdf_sphere},
+            "light": {
+                "type": "sphere",
+                "center": [1, 2, 1],
+                "radius": 0.3,
+                "emitter": {"type": "area", "radiance": {"type": "rgb", "value": 10}},
+            },
+        }
+    )
+
+
+def test_shell_samples_lie_in_the_shell_and_fill_it_by_volume():
+    rng = np.random.default_rng(0)
+    r = np.linalg.norm([sample_shell(rng) for _ in range(4000)], axis=1)
+    assert r.min() >= 0.1 - 1e-12 and r.max() <= 0.3 + 1e-12
+    # Uniform by volume: P(r < r_mid) = (r_mid^3 - 0.1^3) / (0.3^3 - 0.1^3) = 1/2.
+    r_mid = ((0.1**3 + 0.3**3) / 2) ** (1 / 3)
+    assert abs((r < r_mid).mean() - 0.5) < 0.03
+
+
+def test_look_at_uses_opencv_axes():
+    m = look_at([0, 0, 0], [0, 0, 5])  # world y up, looking along +z
+    right, down, forward = m[:3, 0], m[:3, 1], m[:3, 2]
+    np.testing.assert_allclose(forward, [0, 0, 1])
+    np.testing.assert_allclose(down, [0, -1, 0])
+    np.testing.assert_allclose(np.cross(right, down), forward)
+    cam = Camera(m, 33, 21, 60.0)
+    u, v, z = cam.project(np.array([[0.0, 0.0, 2.0]]))[0]
+    assert (u, v, z) == pytest.approx((16.0, 10.0, 2.0))
+
+
+def test_diffuse_scene_reshades_to_the_input(mi, integ):
+    scene = diffuse_room(mi, diffuse([0.6, 0.5, 0.4]), diffuse([0.2, 0.5, 0.7]))
+    cam = Camera(look_at([0, 1.2, 2.5], [0, 0.4, 0]), SIZE, SIZE, 50.0)
+    inp, resh = render_pair(mi, integ, scene, cam, [0.25, -0.1, 0.1])
+    valid = resh[..., 3] == 0
+    assert valid.mean() > 0.95
+    # Lambertian shading does not depend on the viewing direction: only Monte-Carlo
+    # noise may differ (and little, since both images use the same samples).
+    diff = np.abs(resh[..., :3] - inp)[valid]
+    assert diff.mean() < 0.02 * inp[valid].mean()
+
+
+def test_glossy_highlight_moves_as_the_mirror_geometry_predicts(mi, integ):
+    light = np.array([0.0, 1.5, -3.0])
+    scene = mi.load_dict(
+        {
+            "type": "scene",
+            "plane": {
+                "type": "rectangle",
+                "bsdf": {"type": "roughconductor", "material": "Al", "alpha": 0.03},
+                "to_world": mi.ScalarTransform4f().rotate([1, 0, 0], -90).scale(6),
+            },
+            "light": {
+                "type": "sphere",
+                "center": light.tolist(),
+                "radius": 0.1,
+                "emitter": {"type": "area", "radiance": {"type": "rgb", "value": 50}},
+            },
+        }
+    )
+    cam = Camera(look_at([0, 1.5, 3], [0, 0, 0]), SIZE, SIZE, 30.0)
+    offset = np.array([0.5, 0.0, 0.0])  # sideways, to the camera's right
+    inp, resh = render_pair(mi, integ, scene, cam, offset, spp=64)
+
+    def highlight(image):
+        lum = image[..., :3].mean(-1)
+        w = np.where(lum > 0.2 * lum.max(), lum, 0)
+        v, u = np.mgrid[0 : lum.shape[0], 0 : lum.shape[1]]
+        return np.array([(w * u).sum(), (w * v).sum()]) / w.sum()
+
+    def mirror_point(eye):
+        # The highlight is where the line from the eye to the light mirrored in y = 0
+        # crosses the plane.
+        mirrored = light * [1, -1, 1]
+        t = eye[1] / (eye[1] - mirrored[1])
+        return eye + t * (mirrored - eye)
+
+    expect_in = cam.project(mirror_point(cam.centre))[0, :2]
+    expect_resh = cam.project(mirror_point(cam.translated(offset).centre))[0, :2]
+    assert expect_resh[0] - expect_in[0] > 3  # the prediction is a clear move to the right
+    np.testing.assert_allclose(highlight(inp), expect_in, atol=1.0)
+    np.testing.assert_allclose(highlight(resh), expect_resh, atol=1.0)
+
+
+def test_geometry_and_depth_are_those_of_the_input_view(mi, integ):
+    # Black objects against a white sky: the image is the objects' silhouette.
+    scene = mi.load_dict(
+        {
+            "type": "scene",
+            "env": {"type": "constant", "radiance": {"type": "rgb", "value": 1.0}},
+            "sphere": {
+                "type": "sphere",
+                "center": [0.3, 0, 3],
+                "radius": 0.6,
+                "bsdf": diffuse(0.0),
+            },
+            "cube": {
+                "type": "cube",
+                "bsdf": diffuse(0.0),
+                "to_world": mi.ScalarTransform4f().translate([-0.8, 0.3, 4]).scale(0.4),
+            },
+        }
+    )
+    cam = Camera(np.eye(4), SIZE, SIZE, 60.0)  # world axes = OpenCV camera axes
+    inp, resh = render_pair(mi, integ, scene, cam, [0.3, -0.2, 0.1], spp=16)
+    coverage = 1 - inp.mean(-1)
+    assert 0.1 < (coverage > 0.5).mean() < 0.6
+    np.testing.assert_allclose(resh[..., :3], inp, atol=1e-4)
+    # The reshaded pass shades the very points the input camera sees.
+    z_primary, z_rehit = resh[..., 4], resh[..., 5]
+    np.testing.assert_allclose(z_rehit, z_primary, atol=1e-3)
+
+    depth = integ.render_depth(scene, cam)
+    d = (np.mgrid[0:SIZE, 0:SIZE][::-1] - (SIZE - 1) / 2) / cam.fx  # (x/z, y/z) per pixel
+    ray = np.stack([d[0], d[1], np.ones_like(d[0])], -1)
+    # z-depth of the sphere analytically: t along (x/z, y/z, 1) with |t*ray - c| = r.
+    c = np.array([0.3, 0, 3])
+    a, b = (ray * ray).sum(-1), -2 * ray @ c
+    disc = b * b - 4 * a * (c @ c - 0.36)
+    t = (-b - np.sqrt(np.maximum(disc, 0))) / (2 * a)
+    on_sphere = disc > 1e-3
+    np.testing.assert_allclose(depth[on_sphere], t[on_sphere], rtol=1e-4)
+    assert np.isinf(depth[coverage == 0]).all()
+
+
+def _tilted_plane_coverage(cam: Camera, a: float, b: float, sub: int = 16) -> np.ndarray:
+    """Fraction of each pixel covered by the quad x + a z = b, 1 <= z <= 4, |y| <= 2."""
+    offs = (np.arange(sub) + 0.5) / sub - 0.5
+    v, u = np.mgrid[0 : cam.height, 0 : cam.width]
+    uu = (u[..., None, None] + offs[None, None, None, :] - cam.cx) / cam.fx
+    vv = (v[..., None, None] + offs[None, None, :, None] - cam.cy) / cam.fy
+    with np.errstate(divide="ignore"):
+        z = b / (uu + a)
+    hit = (z >= 1) & (z <= 4) & (np.abs(z * vv) <= 2)
+    return hit.mean(axis=(-1, -2))
+
+
+def test_mask_is_invalid_exactly_where_the_surface_faces_away(mi, integ):
+    a, b = 0.5, 0.8  # plane x + a z = b: between c = 0 and c' = (1, 0, 0)
+    corners = [[b - a, -2, 1], [b - a, 2, 1], [b - 4 * a, 2, 4], [b - 4 * a, -2, 4]]
+    scene = mi.load_dict(
+        {
+            "type": "scene",
+            "env": {"type": "constant"},
+            "quad": rectangle(mi, corners, diffuse(0.5)),
+            "back": {
+                "type": "rectangle",
+                "bsdf": diffuse(0.5),
+                "to_world": mi.ScalarTransform4f().translate([0, 0, 6]).scale(20),
+            },
+        }
+    )
+    cam = Camera(np.eye(4), SIZE, SIZE, 60.0)
+    coverage = _tilted_plane_coverage(cam, a, b)
+    _, resh = render_pair(mi, integ, scene, cam, [1.0, 0.0, 0.0], spp=32)
+    invalid = resh[..., 3] > 0
+    assert (coverage >= 0.5).sum() > 50
+    assert invalid[coverage >= 0.5].all()
+    assert not invalid[coverage == 0].any()
+    # From the other side, c' sees the same face as c: everything is valid.
+    _, resh = render_pair(mi, integ, scene, cam, [-1.0, 0.0, 0.0], spp=32)
+    assert not (resh[..., 3] > 0).any()
+
+
+def test_zero_offset_reshades_to_exactly_the_input(mi, integ):
+    glossy = {
+        "type": "roughplastic",
+        "alpha": 0.1,
+        "diffuse_reflectance": {"type": "rgb", "value": [0.3, 0.2, 0.1]},
+    }
+    scene = diffuse_room(mi, glossy, {"type": "roughconductor", "material": "Au", "alpha": 0.1})
+    cam = Camera(look_at([0, 1.2, 2.5], [0, 0.4, 0]), SIZE, SIZE, 50.0)
+    inp, resh = render_pair(mi, integ, scene, cam, [0.0, 0.0, 0.0], seed=11)
+    close = np.isclose(resh[..., :3], inp, rtol=1e-3, atol=1e-4).all(-1)
+    assert close.mean() > 0.99
+    assert not (resh[..., 3] > 0).any()
+    # Same check with another seed fails: the agreement is not a loose tolerance.
+    other = integ.render_image(scene, cam, 32, 12, integ.make_path(6))[..., :3]
+    assert np.isclose(other, inp, rtol=1e-3, atol=1e-4).all(-1).mean() < 0.5
+
+
+def run_cli(*argv) -> int:
+    from reshader_train.cli import main
+
+    return main(list(argv))
+
+
+def test_render_command_writes_complete_resumable_examples(mi, tmp_path):
+    out = str(tmp_path / "data")
+    args = ["render", "--out", out, "--count", "3", "--size", "16x12", "--spp", "4", "--seed", "5"]
+    assert run_cli(*args, "--shard", "1/2") == 0
+    assert sorted(os.listdir(out)) == ["00005-000001"]
+    assert run_cli(*args) == 0
+    ids = sorted(os.listdir(out))
+    assert ids == ["00005-000000", "00005-000001", "00005-000002"]
+    folder = os.path.join(out, ids[0])
+    assert sorted(os.listdir(folder)) == sorted(
+        ["input.exr", "reshaded.exr", "novel.exr", "depth.exr", "mask.png", "meta.json"]
+    )
+    meta = json.load(open(os.path.join(folder, "meta.json")))
+    assert (meta["id"], meta["seed"], meta["index"]) == ("00005-000000", 5, 0)
+    assert (meta["width"], meta["height"], meta["spp"]) == (16, 12, 4)
+    for key in ("input_camera", "novel_camera"):
+        cam = meta[key]
+        assert set(cam) >= {"fx", "fy", "cx", "cy", "fov_x_deg", "world_from_camera"}
+        assert np.array(cam["world_from_camera"]).shape == (4, 4)
+    r_in = np.array(meta["input_camera"]["world_from_camera"])
+    r_nv = np.array(meta["novel_camera"]["world_from_camera"])
+    offset = np.array(meta["novel_offset"])
+    assert 0.1 <= np.linalg.norm(offset) <= 0.3
+    np.testing.assert_allclose(r_in[:3, :3].T @ (r_nv[:3, 3] - r_in[:3, 3]), offset, atol=1e-9)
+    assert {"objects", "sky", "orbs", "camera"} <= set(meta["scene"])
+
+    images = {
+        n: np.array(mi.Bitmap(os.path.join(folder, n)))
+        for n in os.listdir(folder)
+        if n != "meta.json"
+    }
+    for name in ("input.exr", "reshaded.exr", "novel.exr"):
+        assert images[name].shape == (12, 16, 3) and images[name].dtype == np.float32
+    assert images["depth.exr"].reshape(12, 16).dtype == np.float32
+    assert images["mask.png"].dtype == np.uint8
+    assert set(np.unique(images["mask.png"])) <= {0, 255}
+
+    # Resumable: a second run skips complete examples and leaves them untouched.
+    stamp = os.path.getmtime(os.path.join(folder, "meta.json"))
+    os.makedirs(os.path.join(out, ".tmp-00005-000003"))  # an interrupted example
+    assert run_cli(*args, "--count", "4") == 0
+    assert os.path.getmtime(os.path.join(folder, "meta.json")) == stamp
+    assert not os.path.exists(os.path.join(out, ".tmp-00005-000003"))
+    # Deterministic: re-rendering an example reproduces it.
+    again = str(tmp_path / "again")
+    assert (
+        run_cli(
+            "render", "--out", again, "--count", "1", "--size", "16x12", "--spp", "4", "--seed", "5"
+        )
+        == 0
+    )
+    first = np.array(mi.Bitmap(os.path.join(folder, "reshaded.exr")))
+    second = np.array(mi.Bitmap(os.path.join(again, ids[0], "reshaded.exr")))
+    np.testing.assert_array_equal(first, second)
+
+
+def test_scene_file_with_random_materials_and_orbs(mi, tmp_path):
+    xml = tmp_path / "room.xml"
+    xml.write_text(
+        """<scene version="3.0.0">
+  <integrator type="path"><integer name="max_depth" value="4"/></integrator>
+  <bsdf type="diffuse" id="white"><rgb name="reflectance" value="0.7"/></bsdf>
+  <emitter type="constant"><rgb name="radiance" value="0.5"/></emitter>
+  <shape type="cube"><transform name="to_world"><scale value="3"/></transform>
+    <ref id="white"/></shape>
+  <shape type="sphere"><point name="center" x="0" y="-2" z="0"/><float name="radius" value="0.6"/>
+    <bsdf type="conductor"/></shape>
+</scene>"""
+    )
+    out = str(tmp_path / "data")
+    assert (
+        run_cli(
+            "render",
+            "--out",
+            out,
+            "--scenes",
+            str(xml),
+            "--count",
+            "1",
+            "--size",
+            "16x12",
+            "--spp",
+            "4",
+            "--randomize-materials",
+            "--orbs",
+            "2",
+        )
+        == 0
+    )
+    meta = json.load(open(os.path.join(out, "00000-000000", "meta.json")))
+    assert meta["scene"]["kind"] == "file" and meta["scene"]["max_depth"] == 4
+    assert len(meta["scene"]["materials"]) == 2
+    assert len(meta["scene"]["orbs"]) == 2
+    assert all(abs(v) < 3 for orb in meta["scene"]["orbs"] for v in orb["position"])
+
+
+def test_bad_inputs_give_clear_errors(mi, tmp_path, capsys):
+    bad = tmp_path / "bad.xml"
+    bad.write_text("<scene><shape")
+    assert run_cli("render", "--out", str(tmp_path), "--scenes", str(bad), "--count", "1") == 2
+    assert "bad.xml" in capsys.readouterr().err
+    assert run_cli("render", "--out", str(tmp_path), "--count", "1", "--size", "big") == 2
+    assert "--size" in capsys.readouterr().err
+    assert run_cli("render", "--out", str(tmp_path), "--count", "1", "--shard", "2/2") == 2
+    assert "--shard" in capsys.readouterr().err
+
+
+def test_sheet_shows_every_example(mi, tmp_path):
+    out = str(tmp_path / "data")
+    assert run_cli("render", "--out", out, "--count", "2", "--size", "16x12", "--spp", "2") == 0
+    png = str(tmp_path / "sheet.png")
+    assert run_cli("sheet", out, "--out", png) == 0
+    sheet = np.array(mi.Bitmap(png))
+    assert sheet.shape == (2 * (12 + 2), 4 * 16 + 3 * 2, 3)
+    assert math.isclose(float(sheet[-1, -1].mean()), 255)

@@ -154,8 +154,9 @@ class Decoder(nn.Module):
         bottleneck: torch.Tensor,
         camera: torch.Tensor,
     ) -> torch.Tensor:
-        cam = self.camera(camera)[:, :, None, None]
-        cam = cam.expand(-1, -1, bottleneck.shape[2], bottleneck.shape[3])
+        # Broadcast by adding a zero plane rather than with expand(): exports as a plain Add
+        # instead of Expand (which tract's int8 path rejects) plus shape arithmetic.
+        cam = self.camera(camera)[:, :, None, None] + torch.zeros_like(bottleneck[:, :1])
         x = self.bottleneck(torch.cat([bottleneck, cam], dim=1))
         for block, skip in zip(self.ups, reversed(skips), strict=True):
             x = F.interpolate(x, scale_factor=2.0, mode="bilinear", align_corners=False)

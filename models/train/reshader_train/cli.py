@@ -18,6 +18,7 @@ COMMANDS = [
     ("sheet", "reshader_train.render.sheet", "contact sheet PNG of a rendered dataset"),
     ("train", "reshader_train.train", "train the reshading network (single process or torchrun)"),
     ("evaluate", "reshader_train.evaluate", "PSNR/SSIM of input vs reshaded on held-out data"),
+    ("convert-depth", "reshader_train.depthconv.command", "Caffe2 depth net -> ONNX int8, fp32"),
 ]
 
 

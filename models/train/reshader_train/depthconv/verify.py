@@ -1,0 +1,67 @@
+"""Compare a converted depth model's disparity with the original implementation's output."""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .preprocess import load_rgb, network_input
+
+
+@dataclass
+class Errors:
+    """Disparity (exp of the network output) against the reference disparity."""
+
+    photo: str
+    size: list[int]
+    max_rel: float
+    mean_rel: float
+    pearson: float
+
+    def as_dict(self) -> dict:
+        return asdict(self)
+
+
+def disparity_errors(photo: str, log_disparity: np.ndarray, reference: np.ndarray) -> Errors:
+    disparity = np.exp(np.asarray(log_disparity, np.float64)).reshape(reference.shape)
+    ref = np.asarray(reference, np.float64)
+    if not np.all(ref > 0):
+        raise ValueError(f"{photo}: reference disparity has non-positive values")
+    rel = np.abs(disparity - ref) / ref
+    pearson = float(np.corrcoef(disparity.ravel(), ref.ravel())[0, 1])
+    return Errors(photo, list(ref.shape), float(rel.max()), float(rel.mean()), pearson)
+
+
+def reference_pairs(source: Path) -> list[tuple[Path, Path]]:
+    """(photo, reference .npy) pairs shipped with the model: input/NAME.jpg, output/NAME.npy."""
+    pairs = []
+    for photo in sorted((source / "input").glob("*.jpg")):
+        ref = source / "output" / f"{photo.stem}.npy"
+        if ref.is_file():
+            pairs.append((photo, ref))
+    if not pairs:
+        raise FileNotFoundError(f"{source}: no input/*.jpg with a matching output/*.npy")
+    return pairs
+
+
+def onnxruntime_errors(model_path: Path, pairs: list[tuple[Path, Path]]) -> list[Errors]:
+    """Run the ONNX file with onnxruntime (CPU, 2 threads) on each reference photo."""
+    import onnxruntime as ort
+
+    options = ort.SessionOptions()
+    options.intra_op_num_threads = 2
+    session = ort.InferenceSession(str(model_path), options, providers=["CPUExecutionProvider"])
+    input_name = session.get_inputs()[0].name
+    out = []
+    for photo, ref_path in pairs:
+        x = network_input(load_rgb(photo))
+        reference = np.load(ref_path)
+        if reference.shape != x.shape[2:]:
+            raise ValueError(
+                f"{ref_path}: reference is {reference.shape}, network input is {x.shape[2:]}"
+            )
+        (y,) = session.run(None, {input_name: x})
+        out.append(disparity_errors(photo.name, y, reference))
+    return out

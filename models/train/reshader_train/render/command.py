@@ -90,6 +90,18 @@ def summarize(seconds: list[float], skipped: int, failed: list) -> str:
     return "\n".join(lines)
 
 
+def release_caches() -> None:
+    """Drop the compiled kernels of the previous scene: every scene compiles its own, and
+    a long job would otherwise keep thousands of them in memory."""
+    import gc
+
+    import drjit as dr
+
+    gc.collect()
+    dr.flush_kernel_cache()
+    dr.flush_malloc_cache()
+
+
 def run(args) -> int:
     from tqdm import tqdm
 
@@ -123,6 +135,8 @@ def run(args) -> int:
             failed.append((index, str(err).splitlines()[0]))
             print(f"example {index} failed: {err}", file=sys.stderr, flush=True)
             continue
+        finally:
+            release_caches()
         seconds.append(time.perf_counter() - start)
         bar.set_postfix(s_per_ex=f"{statistics.mean(seconds):.1f}")
     print(summarize(seconds, skipped, failed), flush=True)

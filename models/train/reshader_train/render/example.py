@@ -18,6 +18,9 @@ import numpy as np
 
 from .cameras import Camera, look_at, sample_shell
 
+# All three images are scaled so that the input's median luminance is this: the training
+# tone mapping (exposure x3..10, then clip) expects HDR values of roughly this level.
+TARGET_MEDIAN = 0.06
 # A novel camera up to 0.3 away must stay in free space, so the input camera keeps this
 # clearance from all geometry.
 CLEARANCE = 0.35
@@ -150,6 +153,16 @@ def render_views(
     return out
 
 
+def brightness_scale(image: np.ndarray) -> float:
+    """Factor that brings the median luminance to TARGET_MEDIAN (bounded to 1/100..100).
+
+    Scaling every image of an example by one factor is the same as scaling every light
+    in the scene, so the input/reshaded relation is untouched.
+    """
+    lum = image @ np.array([0.2126, 0.7152, 0.0722], dtype=np.float32)
+    return float(np.clip(TARGET_MEDIAN / max(float(np.median(lum)), 1e-8), 0.01, 100.0))
+
+
 def write_example(mi, out_dir: str, ex_id: str, views: dict, meta: dict) -> str:
     """Write into `<out>/.tmp-<id>` and rename: a folder named <id> is always complete."""
     final = os.path.join(out_dir, ex_id)
@@ -187,6 +200,9 @@ def render_example(mi, source, out_dir: str, seed: int, index: int, settings: Re
     views = render_views(
         mi, scene, input_cam, novel_cam, settings.spp, render_seed, params["max_depth"], timings
     )
+    scale = brightness_scale(views["input"])
+    for name in ("input", "reshaded", "novel"):
+        views[name] = views[name] * scale
     timings["total"] = time.perf_counter() - start
     ex_id = example_id(seed, index)
     meta = {
@@ -201,7 +217,7 @@ def render_example(mi, source, out_dir: str, seed: int, index: int, settings: Re
         "novel_camera": novel_cam.meta(),
         "novel_offset": [float(v) for v in offset],
         "invalid_fraction": float((views["invalid"] > 0).mean()),
-        "scene": {**params, "camera": cam},
+        "scene": {**params, "camera": cam, "brightness_scale": scale},
         "render_seconds": timings,
     }
     write_example(mi, out_dir, ex_id, views, meta)

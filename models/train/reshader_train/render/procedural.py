@@ -107,7 +107,7 @@ def _place(rng, objects: list, obj: dict, centre, spread: float, bounds) -> bool
 def sample_scene(rng: np.random.Generator) -> dict:
     """Every random choice of one procedural scene (cameras are chosen later)."""
     kind = "room" if rng.uniform() < 0.7 else "tabletop"
-    scene: dict = {"kind": kind, "max_depth": int(rng.integers(5, 9))}
+    scene: dict = {"kind": kind, "max_depth": int(rng.integers(4, 8))}
     if kind == "room":
         w, d, h = rng.uniform(3.5, 8.0), rng.uniform(3.5, 8.0), rng.uniform(2.5, 3.5)
         scene["room"] = {

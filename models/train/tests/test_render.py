@@ -70,6 +70,16 @@ def diffuse_room(mi, bsdf_floor, bsdf_sphere):
     )
 
 
+def test_libllvm_finder_takes_the_newest_version_of_at_least_16(tmp_path):
+    for name in ("libLLVM-15.so.1", "libLLVM-17.so.1", "libLLVM.so.19.1", "libLLVM-14.so"):
+        (tmp_path / name).write_bytes(b"")
+    found = mitsuba_env.find_libllvm((str(tmp_path / "libLLVM*.so*"),))
+    assert found == str(tmp_path / "libLLVM.so.19.1")
+    (tmp_path / "libLLVM.so.19.1").unlink()
+    (tmp_path / "libLLVM-17.so.1").unlink()
+    assert mitsuba_env.find_libllvm((str(tmp_path / "libLLVM*.so*"),)) is None
+
+
 def test_shell_samples_lie_in_the_shell_and_fill_it_by_volume():
     rng = np.random.default_rng(0)
     r = np.linalg.norm([sample_shell(rng) for _ in range(4000)], axis=1)

@@ -110,7 +110,8 @@ def trace_distances(scene, origin, directions: np.ndarray) -> np.ndarray:
     """Distance to the first hit along each ray (inf on a miss); directions shape (..., 3)."""
     flat = directions.reshape(-1, 3).astype(np.float32)
     n = flat.shape[0]
-    o = mi.Point3f(*[dr.full(mi.Float, float(c), n) for c in origin])
+    # Opaque: a literal origin would compile a new kernel for every camera candidate.
+    o = mi.Point3f(*[dr.opaque(mi.Float, float(c), n) for c in origin])
     d = mi.Vector3f(mi.Float(flat[:, 0]), mi.Float(flat[:, 1]), mi.Float(flat[:, 2]))
     si = scene.ray_intersect(mi.Ray3f(o, d))
     t = np.array(dr.select(si.is_valid(), si.t, dr.inf), dtype=np.float32)

@@ -204,17 +204,19 @@ def make_sample(
 
 
 class ReshadeDataset(Dataset):
-    """Training samples from one dataset folder; decoded examples are cached per process."""
+    """Training samples from a dataset folder (or a list of example folders); decoded
+    examples are cached per process."""
 
     def __init__(
         self,
-        root: Path,
+        root: Path | list[Path],
         crop: int | None = None,
         augment: Augment | None = None,
         cache: bool = True,
         limit: int | None = None,
     ) -> None:
-        self.folders = list_examples(Path(root))[:limit]
+        folders = list(root) if isinstance(root, list) else list_examples(Path(root))
+        self.folders = folders[:limit]
         self.crop = crop
         self.augment = augment
         self.cache = cache

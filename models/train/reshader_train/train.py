@@ -25,14 +25,14 @@ import torch.distributed as dist
 from torch.nn.parallel import DistributedDataParallel
 from torch.utils.data import DataLoader, DistributedSampler
 
-from .data import Augment, DatasetError, ReshadeDataset
+from .data import Augment, DatasetError, ReshadeDataset, list_examples
 from .evaluate import masked_psnr, reshade
 from .features import CHOICES, FeatureNetError, load_feature_net
 from .losses import ReshadeLoss, bf16_is_fast
 from .model import NetConfig, ReshadeNet, count_parameters, net_config
 
 CHECKPOINT = "checkpoint.pt"
-LOG_FIELDS = ("step", "lr", "loss", "l1", "vgg", "style", "steps_per_s", "elapsed_s")
+LOG_FIELDS = ("step", "lr", "loss", "l1", "vgg", "style", "examples", "steps_per_s", "elapsed_s")
 VAL_FIELDS = ("step", "psnr_input", "psnr_ours", "gain_db")
 
 
@@ -67,6 +67,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--val-examples", type=int, default=16)
     p.add_argument("--limit", type=int, help="use only the first N training examples")
     p.add_argument("--no-cache", action="store_true", help="decode EXRs every time")
+    p.add_argument(
+        "--rescan",
+        action="store_true",
+        help="re-list the dataset every epoch and train on examples rendered meanwhile",
+    )
     p.add_argument("--no-progress", action="store_true", help="plain log lines instead of tqdm")
 
 
@@ -161,6 +166,38 @@ def validate(net: ReshadeNet, val: ReshadeDataset, count: int, device: torch.dev
     }
 
 
+def shared_example_list(args: argparse.Namespace, d: Dist) -> list[Path]:
+    """Rank 0's listing of the training examples, so that every rank shards the same list."""
+    folders = list_examples(args.data)[: args.limit] if d.main else []
+    if d.world > 1:
+        box = [folders]
+        dist.broadcast_object_list(box, src=0)
+        folders = box[0]
+    return folders
+
+
+def make_loader(args: argparse.Namespace, d: Dist, folders: list[Path]):
+    dataset = ReshadeDataset(folders, crop=args.crop, augment=Augment(), cache=not args.no_cache)
+    sampler = DistributedSampler(
+        dataset, num_replicas=d.world, rank=d.rank, shuffle=True, seed=args.seed, drop_last=True
+    )
+    if len(sampler) < args.batch_size:
+        raise DatasetError(
+            f"{args.data}: {len(dataset)} examples give {len(sampler)} per process, fewer than "
+            f"--batch-size {args.batch_size}"
+        )
+    loader = DataLoader(
+        dataset,
+        batch_size=args.batch_size,
+        sampler=sampler,
+        drop_last=True,
+        num_workers=args.workers,
+        persistent_workers=args.workers > 0,
+        pin_memory=d.device.type == "cuda",
+    )
+    return dataset, sampler, loader
+
+
 def _reduce_mean(parts: dict[str, float], d: Dist) -> dict[str, float]:
     if d.world == 1:
         return parts
@@ -187,26 +224,7 @@ def train(args: argparse.Namespace) -> ReshadeNet:
     )
     feature_dtype = torch.bfloat16 if bf16 else torch.float32
     criterion = ReshadeLoss(feature_net, feature_dtype=feature_dtype)
-    dataset = ReshadeDataset(
-        args.data, crop=args.crop, augment=Augment(), cache=not args.no_cache, limit=args.limit
-    )
-    sampler = DistributedSampler(
-        dataset, num_replicas=d.world, rank=d.rank, shuffle=True, seed=args.seed, drop_last=True
-    )
-    if len(sampler) < args.batch_size:
-        raise DatasetError(
-            f"{args.data}: {len(dataset)} examples give {len(sampler)} per process, fewer than "
-            f"--batch-size {args.batch_size}"
-        )
-    loader = DataLoader(
-        dataset,
-        batch_size=args.batch_size,
-        sampler=sampler,
-        drop_last=True,
-        num_workers=args.workers,
-        persistent_workers=args.workers > 0,
-        pin_memory=d.device.type == "cuda",
-    )
+    dataset, sampler, loader = make_loader(args, d, shared_example_list(args, d))
     val = (
         ReshadeDataset(args.val_data, crop=None, augment=None) if args.val_data and d.main else None
     )
@@ -274,7 +292,14 @@ def train(args: argparse.Namespace) -> ReshadeNet:
     t_last, step_last = t0, step
     net.train()
     epoch = step // max(1, len(loader))
+    first_epoch = epoch
     while step < args.steps:
+        if args.rescan and epoch > first_epoch:
+            folders = shared_example_list(args, d)
+            if len(folders) > len(dataset):
+                dataset, sampler, loader = make_loader(args, d, folders)
+                if d.main:
+                    print(f"dataset grew to {len(dataset)} examples", file=sys.stderr)
         sampler.set_epoch(epoch)
         for batch in loader:
             if step >= args.steps:
@@ -304,6 +329,7 @@ def train(args: argparse.Namespace) -> ReshadeNet:
                             **parts,
                             "step": step,
                             "lr": lr,
+                            "examples": len(dataset),
                             "steps_per_s": round(rate, 4),
                             "elapsed_s": round(now - t0, 1),
                         },

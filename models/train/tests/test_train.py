@@ -6,6 +6,7 @@ import pytest
 import torch
 
 from reshader_train import cli
+from reshader_train.data import list_examples
 from reshader_train.synthetic import write_dataset
 from reshader_train.train import lr_at, train
 
@@ -53,7 +54,7 @@ def train_args(data, run_dir, steps, **kw):
         "--no-progress",
     ]
     for k, v in kw.items():
-        argv += [f"--{k.replace('_', '-')}", str(v)]
+        argv += [f"--{k.replace('_', '-')}"] + ([] if v is True else [str(v)])
     return parser.parse_args(argv)
 
 
@@ -118,3 +119,19 @@ def test_cli_reports_bad_data(tmp_path, capsys):
     )
     assert code == 2
     assert "none: dataset folder does not exist" in capsys.readouterr().err
+
+
+def test_rescan_picks_up_new_examples(data, tmp_path, monkeypatch):
+    import reshader_train.train as train_module
+
+    calls = []
+
+    def growing(root):
+        calls.append(root)
+        folders = list_examples(root)
+        return folders[:2] if len(calls) == 1 else folders
+
+    monkeypatch.setattr(train_module, "list_examples", growing)
+    run = tmp_path / "run"
+    train(train_args(data, run, 3, rescan=True))
+    assert [int(r["examples"]) for r in read_csv(run / "log.csv")] == [2, 4, 4]

@@ -1,0 +1,740 @@
+//! Panel descriptions ("boards"): TOML files, built-in boards and per-unit calibration.
+//!
+//! A board names the panel's native resolution, how many views it shows, how those views
+//! are packed into a quilt, and how its lens sheet maps subpixels to views. The lens sheet
+//! is given in one of three forms (Looking-Glass calibration values, van Berkel's slanted
+//! lenticular parameters, or plain side-by-side stereo); [`Board::mapping`] reduces all of
+//! them to one [`Mapping`].
+
+use std::fmt;
+use std::path::{Path, PathBuf};
+
+use serde::Deserialize;
+
+use crate::mapping::{LensPhase, Mapping};
+
+/// Largest view count a board may declare; the weaving tables store view indices as bytes.
+pub const MAX_VIEWS: u32 = 256;
+/// Largest panel side accepted, in pixels (guards against typos like an extra zero).
+pub const MAX_PANEL_SIDE: u32 = 32_768;
+
+/// Built-in boards, embedded at compile time from the workspace's `boards/` directory.
+const BUILTIN: &[(&str, &str)] = &[
+    (
+        "looking-glass-portrait",
+        include_str!("../../boards/looking-glass-portrait.toml"),
+    ),
+    (
+        "looking-glass-go",
+        include_str!("../../boards/looking-glass-go.toml"),
+    ),
+    (
+        "looking-glass-16-gen2",
+        include_str!("../../boards/looking-glass-16-gen2.toml"),
+    ),
+    (
+        "generic-8view",
+        include_str!("../../boards/generic-8view.toml"),
+    ),
+    (
+        "generic-4view",
+        include_str!("../../boards/generic-4view.toml"),
+    ),
+    ("sbs-2view", include_str!("../../boards/sbs-2view.toml")),
+];
+
+const BUILTIN_NAMES: &[&str] = &[
+    "looking-glass-portrait",
+    "looking-glass-go",
+    "looking-glass-16-gen2",
+    "generic-8view",
+    "generic-4view",
+    "sbs-2view",
+];
+
+/// Everything that can go wrong loading a board or a calibration file.
+///
+/// Every variant names the file (or built-in board) it comes from.
+#[derive(Debug, thiserror::Error)]
+pub enum BoardError {
+    #[error("{path}: cannot read: {source}")]
+    Io {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("{origin}: {message}")]
+    Parse { origin: String, message: String },
+    #[error("{origin}: field `{field}`: {reason}")]
+    Invalid {
+        origin: String,
+        field: String,
+        reason: String,
+    },
+    #[error(
+        "unknown board `{name}`; built-in boards are: {}; or give the path of a .toml board file",
+        known.join(", ")
+    )]
+    Unknown { name: String, known: Vec<String> },
+}
+
+/// Order of the colour subpixels inside one pixel, left to right.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum SubpixelLayout {
+    #[default]
+    Rgb,
+    Bgr,
+}
+
+impl SubpixelLayout {
+    /// Horizontal position (0, 1 or 2) of colour channel `c` (0 = R, 1 = G, 2 = B) in a pixel.
+    pub fn position(self, channel: usize) -> usize {
+        match self {
+            SubpixelLayout::Rgb => channel,
+            SubpixelLayout::Bgr => 2 - channel,
+        }
+    }
+
+    fn flipped(self) -> SubpixelLayout {
+        match self {
+            SubpixelLayout::Rgb => SubpixelLayout::Bgr,
+            SubpixelLayout::Bgr => SubpixelLayout::Rgb,
+        }
+    }
+}
+
+/// Lens sheet in Looking Glass Factory's calibration terms (`visual.json`).
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LookingGlass {
+    /// Lens pitch in lenses per inch, measured perpendicular to the lenses.
+    pub pitch: f64,
+    /// Lens slope: panel rows per pixel of horizontal lens shift (sign gives the direction).
+    pub slope: f64,
+    /// Phase offset of the lens sheet, in lenses.
+    pub center: f64,
+    /// Whether view numbers run against the phase (true on all current Looking Glass units).
+    pub inv_view: bool,
+    /// Panel dots per inch, used to turn `pitch` into lenses per panel width.
+    pub dpi: f64,
+    #[serde(default)]
+    pub flip_image_x: bool,
+    #[serde(default)]
+    pub flip_image_y: bool,
+    /// Swaps the red and blue subpixel positions relative to the board's `subpixels`.
+    #[serde(default)]
+    pub flip_subp: bool,
+}
+
+/// Lens sheet in van Berkel's terms (slanted lenticular over an RGB stripe panel).
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct VanBerkel {
+    /// Slant of the lens axes from vertical, in degrees (give this or `tan_slant`).
+    pub slant_deg: Option<f64>,
+    /// Tangent of the slant angle, e.g. 0.3333333333333333 for atan(1/3).
+    pub tan_slant: Option<f64>,
+    /// Horizontal lens pitch, in subpixels.
+    pub lens_pitch: f64,
+    /// Offset of subpixel 0 from the lens edge, in subpixels.
+    #[serde(default)]
+    pub offset: f64,
+}
+
+impl VanBerkel {
+    /// Tangent of the slant angle, whichever way the file gave it.
+    pub fn tan_alpha(&self) -> f64 {
+        match (self.tan_slant, self.slant_deg) {
+            (Some(t), _) => t,
+            (None, Some(deg)) => deg.to_radians().tan(),
+            (None, None) => 0.0,
+        }
+    }
+}
+
+/// Plain side-by-side stereo: view 0 on the left half, view 1 on the right half.
+#[derive(Debug, Clone, PartialEq, Deserialize, Default)]
+#[serde(deny_unknown_fields)]
+pub struct SideBySide {}
+
+/// How the panel's optics route subpixels to views.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Lens {
+    LookingGlass(LookingGlass),
+    VanBerkel(VanBerkel),
+    SideBySide,
+}
+
+/// The on-disk form of a board; [`Board`] is its validated counterpart.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct BoardFile {
+    name: String,
+    #[serde(default)]
+    description: String,
+    width: u32,
+    height: u32,
+    views: u32,
+    quilt_cols: u32,
+    quilt_rows: u32,
+    view_width: Option<u32>,
+    view_height: Option<u32>,
+    view_cone_deg: f64,
+    #[serde(default)]
+    subpixels: SubpixelLayout,
+    looking_glass: Option<LookingGlass>,
+    van_berkel: Option<VanBerkel>,
+    side_by_side: Option<SideBySide>,
+}
+
+/// A validated panel description.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Board {
+    name: String,
+    description: String,
+    origin: String,
+    width: u32,
+    height: u32,
+    views: u32,
+    quilt_cols: u32,
+    quilt_rows: u32,
+    view_size: (u32, u32),
+    view_cone_deg: f64,
+    subpixels: SubpixelLayout,
+    lens: Lens,
+}
+
+impl Board {
+    /// Loads a built-in board by name (see [`Board::builtin_names`]).
+    pub fn builtin(name: &str) -> Result<Board, BoardError> {
+        let (_, text) = BUILTIN
+            .iter()
+            .find(|(n, _)| *n == name)
+            .ok_or_else(|| unknown_board(name))?;
+        Board::from_toml_str(text, &format!("built-in board `{name}`"))
+    }
+
+    /// Names of the boards embedded in the library.
+    pub fn builtin_names() -> &'static [&'static str] {
+        BUILTIN_NAMES
+    }
+
+    /// Loads and validates a board file.
+    pub fn from_path(path: &Path) -> Result<Board, BoardError> {
+        let text = std::fs::read_to_string(path).map_err(|source| BoardError::Io {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        Board::from_toml_str(&text, &path.display().to_string())
+    }
+
+    /// A built-in board name, or else the path of a board file.
+    ///
+    /// Anything that looks like a path (has a separator or ends in `.toml`) or names an
+    /// existing file is read from disk; everything else must be a built-in name.
+    pub fn resolve(name_or_path: &str) -> Result<Board, BoardError> {
+        if BUILTIN_NAMES.contains(&name_or_path) {
+            return Board::builtin(name_or_path);
+        }
+        let path = Path::new(name_or_path);
+        let looks_like_path = name_or_path.contains(std::path::MAIN_SEPARATOR)
+            || name_or_path.contains('/')
+            || name_or_path.ends_with(".toml");
+        if looks_like_path || path.is_file() {
+            Board::from_path(path)
+        } else {
+            Err(unknown_board(name_or_path))
+        }
+    }
+
+    /// Parses and validates board TOML; `origin` names the source in error messages.
+    pub fn from_toml_str(text: &str, origin: &str) -> Result<Board, BoardError> {
+        let file: BoardFile = toml::from_str(text).map_err(|e| BoardError::Parse {
+            origin: origin.to_string(),
+            message: e.to_string().trim_end().to_string(),
+        })?;
+        Board::validate(file, origin)
+    }
+
+    fn validate(f: BoardFile, origin: &str) -> Result<Board, BoardError> {
+        let v = Validator { origin };
+        v.check(!f.name.trim().is_empty(), "name", "must not be empty")?;
+        v.check_side("width", f.width)?;
+        v.check_side("height", f.height)?;
+        v.check(
+            (2..=MAX_VIEWS).contains(&f.views),
+            "views",
+            &format!("must be between 2 and {MAX_VIEWS}, got {}", f.views),
+        )?;
+        v.check(f.quilt_cols > 0, "quilt_cols", "must be > 0")?;
+        v.check(f.quilt_rows > 0, "quilt_rows", "must be > 0")?;
+        v.check(
+            u64::from(f.quilt_cols) * u64::from(f.quilt_rows) >= u64::from(f.views),
+            "quilt_rows",
+            &format!(
+                "a {}x{} quilt has room for {} views, but the board has {}",
+                f.quilt_cols,
+                f.quilt_rows,
+                f.quilt_cols * f.quilt_rows,
+                f.views
+            ),
+        )?;
+        v.check(
+            f.view_cone_deg.is_finite() && f.view_cone_deg > 0.0 && f.view_cone_deg < 180.0,
+            "view_cone_deg",
+            &format!("must be in (0, 180) degrees, got {}", f.view_cone_deg),
+        )?;
+        let view_size = v.view_size(&f)?;
+        let lens = v.lens(&f)?;
+        Ok(Board {
+            name: f.name,
+            description: f.description,
+            origin: origin.to_string(),
+            width: f.width,
+            height: f.height,
+            views: f.views,
+            quilt_cols: f.quilt_cols,
+            quilt_rows: f.quilt_rows,
+            view_size,
+            view_cone_deg: f.view_cone_deg,
+            subpixels: f.subpixels,
+            lens,
+        })
+    }
+
+    /// Reads a Looking-Glass `visual.json` and applies it (see [`Board::apply_calibration`]).
+    pub fn apply_calibration_file(&mut self, path: &Path) -> Result<(), BoardError> {
+        let cal = Calibration::from_path(path)?;
+        self.apply_calibration(&cal)
+    }
+
+    /// Overrides this board's lens values with a unit's calibration.
+    ///
+    /// Only Looking-Glass-form boards can take one. `screenW`/`screenH` replace the panel
+    /// size and `viewCone` the view cone when present.
+    pub fn apply_calibration(&mut self, cal: &Calibration) -> Result<(), BoardError> {
+        let Lens::LookingGlass(lg) = &mut self.lens else {
+            return Err(BoardError::Invalid {
+                origin: cal.origin.clone(),
+                field: "pitch".into(),
+                reason: format!(
+                    "a Looking-Glass calibration cannot apply to board `{}`, whose lens is not \
+                     described in Looking-Glass form",
+                    self.name
+                ),
+            });
+        };
+        lg.pitch = cal.pitch;
+        lg.slope = cal.slope;
+        lg.center = cal.center;
+        set_if(&mut lg.inv_view, cal.inv_view);
+        set_if(&mut lg.dpi, cal.dpi);
+        set_if(&mut lg.flip_image_x, cal.flip_image_x);
+        set_if(&mut lg.flip_image_y, cal.flip_image_y);
+        set_if(&mut lg.flip_subp, cal.flip_subp);
+        set_if(&mut self.width, cal.screen_w);
+        set_if(&mut self.height, cal.screen_h);
+        set_if(&mut self.view_cone_deg, cal.view_cone_deg);
+        self.origin = format!("{} calibrated by {}", self.origin, cal.origin);
+        Ok(())
+    }
+
+    pub fn name(&self) -> &str {
+        &self.name
+    }
+
+    pub fn description(&self) -> &str {
+        &self.description
+    }
+
+    /// Where the board came from (file path or built-in name), for messages and run logs.
+    pub fn origin(&self) -> &str {
+        &self.origin
+    }
+
+    /// Native panel size in pixels.
+    pub fn panel_size(&self) -> (u32, u32) {
+        (self.width, self.height)
+    }
+
+    pub fn width(&self) -> u32 {
+        self.width
+    }
+
+    pub fn height(&self) -> u32 {
+        self.height
+    }
+
+    pub fn views(&self) -> usize {
+        self.views as usize
+    }
+
+    /// Quilt grid as (columns, rows).
+    pub fn quilt_grid(&self) -> (u32, u32) {
+        (self.quilt_cols, self.quilt_rows)
+    }
+
+    pub fn view_cone_deg(&self) -> f32 {
+        self.view_cone_deg as f32
+    }
+
+    /// Size of one quilt tile, the resolution views are rendered at by default.
+    pub fn view_size(&self) -> (u32, u32) {
+        self.view_size
+    }
+
+    /// View aspect (width / height) as it appears in quilt file names.
+    pub fn view_aspect(&self) -> f32 {
+        self.view_size.0 as f32 / self.view_size.1 as f32
+    }
+
+    /// The Looking-Glass quilt file name for this board's grid and view size.
+    pub fn quilt_file_name(&self) -> String {
+        crate::quilt::quilt_file_name(self.quilt_cols, self.quilt_rows, self.view_aspect())
+    }
+
+    pub fn subpixels(&self) -> SubpixelLayout {
+        self.subpixels
+    }
+
+    pub fn lens(&self) -> &Lens {
+        &self.lens
+    }
+
+    /// The subpixel → view mapping all lens descriptions reduce to.
+    pub fn mapping(&self) -> Mapping {
+        let (w, h) = (self.width, self.height);
+        match &self.lens {
+            Lens::LookingGlass(lg) => {
+                let layout = if lg.flip_subp {
+                    self.subpixels.flipped()
+                } else {
+                    self.subpixels
+                };
+                Mapping::lenticular(
+                    w,
+                    h,
+                    self.views,
+                    layout,
+                    LensPhase::looking_glass(lg, w, h),
+                    (lg.flip_image_x, lg.flip_image_y),
+                )
+            }
+            Lens::VanBerkel(vb) => Mapping::lenticular(
+                w,
+                h,
+                self.views,
+                self.subpixels,
+                LensPhase::van_berkel(vb),
+                (false, false),
+            ),
+            Lens::SideBySide => Mapping::side_by_side(w, h),
+        }
+    }
+}
+
+fn set_if<T: Copy>(slot: &mut T, value: Option<T>) {
+    if let Some(v) = value {
+        *slot = v;
+    }
+}
+
+fn unknown_board(name: &str) -> BoardError {
+    BoardError::Unknown {
+        name: name.to_string(),
+        known: BUILTIN_NAMES.iter().map(|s| s.to_string()).collect(),
+    }
+}
+
+/// Builds field errors that name the file the board came from.
+struct Validator<'a> {
+    origin: &'a str,
+}
+
+impl Validator<'_> {
+    fn err(&self, field: &str, reason: &str) -> BoardError {
+        BoardError::Invalid {
+            origin: self.origin.to_string(),
+            field: field.to_string(),
+            reason: reason.to_string(),
+        }
+    }
+
+    fn check(&self, ok: bool, field: &str, reason: &str) -> Result<(), BoardError> {
+        if ok {
+            Ok(())
+        } else {
+            Err(self.err(field, reason))
+        }
+    }
+
+    fn check_side(&self, field: &str, value: u32) -> Result<(), BoardError> {
+        self.check(
+            value > 0 && value <= MAX_PANEL_SIDE,
+            field,
+            &format!("must be between 1 and {MAX_PANEL_SIDE} pixels, got {value}"),
+        )
+    }
+
+    fn positive(&self, field: &str, value: f64) -> Result<(), BoardError> {
+        self.check(
+            value.is_finite() && value > 0.0,
+            field,
+            &format!("must be > 0, got {value}"),
+        )
+    }
+
+    fn finite(&self, field: &str, value: f64) -> Result<(), BoardError> {
+        self.check(value.is_finite(), field, "must be a finite number")
+    }
+
+    fn view_size(&self, f: &BoardFile) -> Result<(u32, u32), BoardError> {
+        match (f.view_width, f.view_height) {
+            (Some(w), Some(h)) => {
+                self.check_side("view_width", w)?;
+                self.check_side("view_height", h)?;
+                Ok((w, h))
+            }
+            (None, None) => Ok(default_view_size(f)),
+            (Some(_), None) => Err(self.err("view_height", "must be given with `view_width`")),
+            (None, Some(_)) => Err(self.err("view_width", "must be given with `view_height`")),
+        }
+    }
+
+    fn lens(&self, f: &BoardFile) -> Result<Lens, BoardError> {
+        match (&f.looking_glass, &f.van_berkel, &f.side_by_side) {
+            (Some(lg), None, None) => {
+                self.looking_glass(lg)?;
+                Ok(Lens::LookingGlass(lg.clone()))
+            }
+            (None, Some(vb), None) => {
+                self.van_berkel(vb)?;
+                Ok(Lens::VanBerkel(vb.clone()))
+            }
+            (None, None, Some(_)) => {
+                self.check(
+                    f.views == 2,
+                    "views",
+                    &format!(
+                        "a side-by-side board shows exactly 2 views, got {}",
+                        f.views
+                    ),
+                )?;
+                Ok(Lens::SideBySide)
+            }
+            (None, None, None) => Err(self.err(
+                "looking_glass",
+                "no lens description: add one of the tables [looking_glass], [van_berkel] \
+                 or [side_by_side]",
+            )),
+            _ => Err(self.err(
+                "looking_glass",
+                "more than one lens description: keep exactly one of [looking_glass], \
+                 [van_berkel] and [side_by_side]",
+            )),
+        }
+    }
+
+    fn looking_glass(&self, lg: &LookingGlass) -> Result<(), BoardError> {
+        self.positive("looking_glass.pitch", lg.pitch)?;
+        self.finite("looking_glass.slope", lg.slope)?;
+        self.check(
+            lg.slope != 0.0,
+            "looking_glass.slope",
+            "must not be 0 (that would be horizontal lenses)",
+        )?;
+        self.finite("looking_glass.center", lg.center)?;
+        self.positive("looking_glass.dpi", lg.dpi)
+    }
+
+    fn van_berkel(&self, vb: &VanBerkel) -> Result<(), BoardError> {
+        match (vb.slant_deg, vb.tan_slant) {
+            (Some(_), Some(_)) => {
+                return Err(self.err(
+                    "van_berkel.tan_slant",
+                    "give either `slant_deg` or `tan_slant`, not both",
+                ))
+            }
+            (None, None) => {
+                return Err(self.err(
+                    "van_berkel.slant_deg",
+                    "missing: give the lens slant as `slant_deg` or `tan_slant`",
+                ))
+            }
+            (Some(deg), None) => self.check(
+                deg.is_finite() && deg.abs() < 90.0,
+                "van_berkel.slant_deg",
+                &format!("must be strictly between -90 and 90 degrees, got {deg}"),
+            )?,
+            (None, Some(t)) => self.finite("van_berkel.tan_slant", t)?,
+        }
+        self.positive("van_berkel.lens_pitch", vb.lens_pitch)?;
+        self.finite("van_berkel.offset", vb.offset)
+    }
+}
+
+/// Quilt tile size when a board does not give one: the panel's aspect, with the whole
+/// quilt fitting in 4096x4096 (the texture size Looking Glass tools work with).
+fn default_view_size(f: &BoardFile) -> (u32, u32) {
+    const QUILT_SIDE: f64 = 4096.0;
+    let aspect = f64::from(f.width) / f64::from(f.height);
+    let max_w = QUILT_SIDE / f64::from(f.quilt_cols);
+    let max_h = QUILT_SIDE / f64::from(f.quilt_rows);
+    let (w, h) = if max_w / aspect <= max_h {
+        (max_w, max_w / aspect)
+    } else {
+        (max_h * aspect, max_h)
+    };
+    let w = (w.floor() as u32).clamp(1, f.width);
+    let h = (h.floor() as u32).clamp(1, f.height);
+    (w, h)
+}
+
+/// A unit's calibration in Looking Glass Factory's `visual.json` form.
+///
+/// `pitch`, `slope` and `center` are required; the other fields override the board only
+/// when present. Fields this library does not use (serial, fringe, …) are ignored.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Calibration {
+    pub origin: String,
+    pub pitch: f64,
+    pub slope: f64,
+    pub center: f64,
+    pub inv_view: Option<bool>,
+    pub dpi: Option<f64>,
+    pub screen_w: Option<u32>,
+    pub screen_h: Option<u32>,
+    pub flip_image_x: Option<bool>,
+    pub flip_image_y: Option<bool>,
+    pub flip_subp: Option<bool>,
+    pub view_cone_deg: Option<f64>,
+}
+
+impl Calibration {
+    pub fn from_path(path: &Path) -> Result<Calibration, BoardError> {
+        let text = std::fs::read_to_string(path).map_err(|source| BoardError::Io {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        Calibration::from_json_str(&text, &path.display().to_string())
+    }
+
+    /// Parses `visual.json` text; `origin` names the source in error messages.
+    pub fn from_json_str(text: &str, origin: &str) -> Result<Calibration, BoardError> {
+        let root: serde_json::Value =
+            serde_json::from_str(text).map_err(|e| BoardError::Parse {
+                origin: origin.to_string(),
+                message: format!("not valid JSON: {e}"),
+            })?;
+        let obj = root.as_object().ok_or_else(|| BoardError::Parse {
+            origin: origin.to_string(),
+            message: "expected a JSON object of calibration fields".into(),
+        })?;
+        let reader = CalReader { origin, obj };
+        let cal = Calibration {
+            origin: origin.to_string(),
+            pitch: reader.required("pitch")?,
+            slope: reader.required("slope")?,
+            center: reader.required("center")?,
+            inv_view: reader.flag("invView")?,
+            dpi: reader.number("DPI")?,
+            screen_w: reader.pixels("screenW")?,
+            screen_h: reader.pixels("screenH")?,
+            flip_image_x: reader.flag("flipImageX")?,
+            flip_image_y: reader.flag("flipImageY")?,
+            flip_subp: reader.flag("flipSubp")?,
+            view_cone_deg: reader.number("viewCone")?,
+        };
+        cal.validate()?;
+        Ok(cal)
+    }
+
+    fn validate(&self) -> Result<(), BoardError> {
+        let v = Validator {
+            origin: &self.origin,
+        };
+        v.positive("pitch", self.pitch)?;
+        v.check(self.slope != 0.0, "slope", "must not be 0")?;
+        if let Some(dpi) = self.dpi {
+            v.positive("DPI", dpi)?;
+        }
+        if let Some(cone) = self.view_cone_deg {
+            v.check(
+                cone > 0.0 && cone < 180.0,
+                "viewCone",
+                &format!("must be in (0, 180) degrees, got {cone}"),
+            )?;
+        }
+        Ok(())
+    }
+}
+
+/// Reads `{"value": x}`-wrapped fields (plain numbers are accepted too).
+struct CalReader<'a> {
+    origin: &'a str,
+    obj: &'a serde_json::Map<String, serde_json::Value>,
+}
+
+impl CalReader<'_> {
+    fn err(&self, field: &str, reason: impl fmt::Display) -> BoardError {
+        BoardError::Invalid {
+            origin: self.origin.to_string(),
+            field: field.to_string(),
+            reason: reason.to_string(),
+        }
+    }
+
+    fn raw(&self, field: &str) -> Result<Option<&serde_json::Value>, BoardError> {
+        let Some(v) = self.obj.get(field) else {
+            return Ok(None);
+        };
+        match v {
+            serde_json::Value::Object(inner) => inner
+                .get("value")
+                .map(Some)
+                .ok_or_else(|| self.err(field, "expected {\"value\": ...}")),
+            other => Ok(Some(other)),
+        }
+    }
+
+    fn number(&self, field: &str) -> Result<Option<f64>, BoardError> {
+        match self.raw(field)? {
+            None => Ok(None),
+            Some(v) => v
+                .as_f64()
+                .filter(|x| x.is_finite())
+                .map(Some)
+                .ok_or_else(|| self.err(field, format!("expected a number, got {v}"))),
+        }
+    }
+
+    fn required(&self, field: &str) -> Result<f64, BoardError> {
+        self.number(field)?
+            .ok_or_else(|| self.err(field, "missing (a visual.json always has it)"))
+    }
+
+    fn flag(&self, field: &str) -> Result<Option<bool>, BoardError> {
+        match self.raw(field)? {
+            None => Ok(None),
+            Some(serde_json::Value::Bool(b)) => Ok(Some(*b)),
+            Some(v) => match v.as_f64() {
+                Some(x) if x == 0.0 || x == 1.0 => Ok(Some(x == 1.0)),
+                _ => Err(self.err(field, format!("expected 0, 1 or a boolean, got {v}"))),
+            },
+        }
+    }
+
+    fn pixels(&self, field: &str) -> Result<Option<u32>, BoardError> {
+        match self.number(field)? {
+            None => Ok(None),
+            Some(x) if x >= 1.0 && x <= f64::from(MAX_PANEL_SIDE) && x.fract() == 0.0 => {
+                Ok(Some(x as u32))
+            }
+            Some(x) => Err(self.err(
+                field,
+                format!("expected a whole number of pixels in 1..={MAX_PANEL_SIDE}, got {x}"),
+            )),
+        }
+    }
+}

@@ -18,6 +18,9 @@ COMMANDS = [
     ("sheet", "reshader_train.render.sheet", "contact sheet PNG of a rendered dataset"),
     ("train", "reshader_train.train", "train the reshading network (single process or torchrun)"),
     ("evaluate", "reshader_train.evaluate", "PSNR/SSIM of input vs reshaded on held-out data"),
+    ("export", "reshader_train.export", "ONNX models (fp32/fp16/int8, single/split) + manifests"),
+    ("quantize", "reshader_train.quantize", "quantisation-aware int8 fine-tuning of a checkpoint"),
+    ("fixture", "reshader_train.fixture", "tiny model + parity data for the runtime's tests"),
     ("convert-depth", "reshader_train.depthconv.command", "Caffe2 depth net -> ONNX int8, fp32"),
 ]
 

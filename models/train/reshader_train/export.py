@@ -1,0 +1,692 @@
+"""`reshader-train export`: ONNX models and their manifests (/work/notes/manifest.md schema).
+
+For one checkpoint and precision this writes `reshade-<size>-<precision>.onnx` (image,
+disparity, camera -> reshaded) and, with --split, the pair `...-encoder.onnx` (image,
+disparity -> bottleneck, skip0..skip4) and `...-decoder.onnx` (image, bottleneck, skips,
+camera -> reshaded), each beside a JSON manifest. Every graph is checked with onnx.checker
+and run by onnxruntime against PyTorch before it is written; the measured difference and
+the tolerance go into the manifest's "validation".
+
+Precisions:
+- fp32: opset 17, H and W dynamic (the runtime pins them at load), constants folded.
+- fp16: weights and activations in half precision; inputs and outputs stay float32 (Casts at
+  the graph boundary).
+- int8: QDQ on the convolutions only (see quantize.py): from a `quantize` (QAT) checkpoint,
+  or post-training quantisation of a float checkpoint calibrated on --calibration crops.
+"""
+
+from __future__ import annotations
+
+import argparse
+import copy
+import hashlib
+import io
+import json
+import os
+import shlex
+import sys
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import nn
+
+from .model import (
+    ALIGN,
+    DISPARITY_FREQUENCIES,
+    SIZES,
+    DecoderGraph,
+    EncoderGraph,
+    NetConfig,
+    ReshadeNet,
+    conv_flops,
+    count_parameters,
+)
+from .quantize import (
+    SCHEME,
+    WEIGHT_LEVELS,
+    QuantConv2d,
+    calibrate,
+    command_line,
+    is_quantized,
+    load_any_checkpoint,
+    quantize_network,
+    training_crops,
+)
+
+OPSET = 17
+FORMAT = "reshader-manifest/1"
+PRECISIONS = ("fp32", "fp16", "int8")
+FLOPS_SIZE = (384, 640)
+LICENCE = "MIT OR Apache-2.0"
+# Largest |onnxruntime - PyTorch| accepted on the parity input, per precision. fp32 differs
+# only by summation order; fp16 is compared with the float32 network (half-precision storage
+# and arithmetic); int8 with the same fake-quantised network in PyTorch (a value on a rounding
+# boundary may land one quantisation step away, which the next layers attenuate).
+TOLERANCE = {"fp32": 1e-4, "fp16": 2e-2, "int8": 2e-2}
+
+IMAGE = {"color": "srgb", "range": [0, 1], "channel_order": "rgb", "mean": None, "std": None}
+DISPARITY_ENCODING = {
+    "formula": "clamp(0.25/depth, 0, 1)",
+    "frequencies": DISPARITY_FREQUENCIES,
+    "pi": False,
+    "in_graph": True,
+}
+CAMERA = {
+    "convention": "opencv",
+    "meaning": "novel camera centre in the input camera frame, scene units",
+    "training_offset_range": [0.1, 0.3],
+}
+
+
+class ExportError(RuntimeError):
+    pass
+
+
+# --- tensor descriptions -------------------------------------------------------------------
+
+
+def _dims(level: int) -> tuple[str, str]:
+    return ("H", "W") if level == 0 else (f"H/{2**level}", f"W/{2**level}")
+
+
+def tensor_specs(cfg: NetConfig) -> dict[str, dict]:
+    """Manifest entries of every tensor a reshade graph may take or give."""
+    specs = {
+        "image": {
+            "layout": "NCHW",
+            "shape": [1, 3, "H", "W"],
+            "range": [0, 1],
+            "description": "input photo, sRGB-encoded RGB in [0,1], padded to multiples of 32",
+        },
+        "disparity": {
+            "layout": "NCHW",
+            "shape": [1, 1, "H", "W"],
+            "range": [0, 1],
+            "description": "d = clamp(0.25/depth, 0, 1); frequency-encoded inside the graph",
+        },
+        "camera": {
+            "layout": "NC",
+            "shape": [1, 3],
+            "range": None,
+            "description": "novel camera centre (tx, ty, tz) in the input camera's OpenCV frame",
+        },
+        "reshaded": {
+            "layout": "NCHW",
+            "shape": [1, 3, "H", "W"],
+            "range": None,
+            "description": "input + tanh(residual): crop the padding and clamp to [0,1]",
+        },
+    }
+    last = len(cfg.widths) - 1
+    specs["bottleneck"] = {
+        "layout": "NCHW",
+        "shape": [1, cfg.widths[last], *_dims(last)],
+        "range": None,
+        "description": "encoder features at H/32 (view independent)",
+    }
+    for i in range(last):
+        specs[f"skip{i}"] = {
+            "layout": "NCHW",
+            "shape": [1, cfg.widths[i], *_dims(i)],
+            "range": None,
+            "description": f"encoder skip features at {'full' if i == 0 else f'1/{2**i}'} "
+            "resolution (view independent)",
+        }
+    return {k: {"name": k, "dtype": "float32", **v} for k, v in specs.items()}
+
+
+@dataclass(frozen=True)
+class GraphKind:
+    suffix: str  # "" | "-encoder" | "-decoder"
+    task: str
+    inputs: tuple[str, ...]
+    outputs: tuple[str, ...]
+
+
+SINGLE = GraphKind("", "reshade", ("image", "disparity", "camera"), ("reshaded",))
+ENCODER = GraphKind(
+    "-encoder", "reshade-encoder", EncoderGraph.input_names, EncoderGraph.output_names
+)
+DECODER = GraphKind(
+    "-decoder", "reshade-decoder", DecoderGraph.input_names, DecoderGraph.output_names
+)
+
+
+def graph_module(net: ReshadeNet, kind: GraphKind) -> nn.Module:
+    if kind is ENCODER:
+        return EncoderGraph(net)
+    if kind is DECODER:
+        return DecoderGraph(net)
+    return net
+
+
+def dynamic_axes(cfg: NetConfig, names: tuple[str, ...]) -> dict[str, dict[int, str]]:
+    specs = tensor_specs(cfg)
+    return {
+        n: {2: specs[n]["shape"][2], 3: specs[n]["shape"][3]}
+        for n in names
+        if specs[n]["layout"] == "NCHW"
+    }
+
+
+# --- inputs used for tracing and parity -----------------------------------------------------
+
+
+def parity_inputs(height: int, width: int) -> dict[str, torch.Tensor]:
+    """A closed-form photo-like input (documented in the README so the runtime can rebuild it):
+    image[c,y,x] = 0.1 + 0.1 c + 0.2 x/W + 0.5 exp(-((x - 0.4 W)^2 + (y - 0.45 H)^2) / (2 s^2)),
+    s = 0.15 min(H, W); depth[y,x] = 1.5 + x/W + y/H, disparity = 0.25 / depth."""
+    y = torch.arange(height, dtype=torch.float32)[:, None]
+    x = torch.arange(width, dtype=torch.float32)[None, :]
+    s = 0.15 * min(height, width)
+    blob = 0.5 * torch.exp(-((x - 0.4 * width) ** 2 + (y - 0.45 * height) ** 2) / (2 * s * s))
+    image = torch.stack([0.1 + 0.1 * c + 0.2 * x / width + blob for c in range(3)])
+    depth = 1.5 + x / width + y / height
+    return {"image": image[None], "disparity": (0.25 / depth)[None, None]}
+
+
+def graph_inputs(net: ReshadeNet, kind: GraphKind, feed: dict) -> dict[str, torch.Tensor]:
+    """The named inputs of `kind`, computing encoder outputs with `net` for the decoder."""
+    if kind is not DECODER:
+        return {n: feed[n] for n in kind.inputs}
+    with torch.no_grad():
+        outs = EncoderGraph(net)(feed["image"], feed["disparity"])
+    return {
+        **dict(zip(EncoderGraph.output_names, outs, strict=True)),
+        "image": feed["image"],
+        "camera": feed["camera"],
+    }
+
+
+# --- precision transforms -------------------------------------------------------------------
+
+
+class HalfBoundary(nn.Module):
+    """Runs `inner` in float16 with float32 inputs and outputs."""
+
+    def __init__(self, inner: nn.Module) -> None:
+        super().__init__()
+        self.inner = copy.deepcopy(inner).half()
+
+    def forward(self, *xs: torch.Tensor):
+        out = self.inner(*(x.half() for x in xs))
+        if isinstance(out, tuple):
+            return tuple(o.float() for o in out)
+        return out.float()
+
+
+def dequantized_float_net(qnet: ReshadeNet) -> tuple[ReshadeNet, dict[str, dict]]:
+    """The float network with the quantised convolutions unwrapped, and per conv weight name
+    its QDQ parameters (input scale/zero point, int8 weight, weight scales)."""
+    net = copy.deepcopy(qnet)
+    params: dict[str, dict] = {}
+    for module in list(net.modules()):
+        for name, child in module.named_children():
+            if isinstance(child, QuantConv2d):
+                setattr(module, name, child.conv)
+                params[id(child.conv)] = _conv_qparams(child)
+    named = {
+        f"{mod_name}.weight": params[id(m)]
+        for mod_name, m in net.named_modules()
+        if id(m) in params
+    }
+    return net, named
+
+
+def _conv_qparams(q: QuantConv2d) -> dict:
+    with torch.no_grad():
+        in_scale, in_zero = q.act.qparams()
+        w_scale, _ = q.weight_qparams()
+        w = q.conv.weight
+        w_int = torch.clamp(
+            torch.round(w / w_scale[:, None, None, None]), -WEIGHT_LEVELS, WEIGHT_LEVELS
+        )
+    return {
+        "in_scale": float(in_scale),
+        "in_zero": int(in_zero),
+        "w_scale": w_scale.numpy().astype(np.float32),
+        "w_int": w_int.numpy().astype(np.int8),
+    }
+
+
+def insert_conv_qdq(model, qparams: dict[str, dict]) -> None:
+    """Rewrites every Conv whose weight is in `qparams`: QuantizeLinear -> DequantizeLinear on
+    its input (uint8, per tensor) and an int8 weight initialiser with a per-channel
+    DequantizeLinear. Nothing else is touched, so the float ops stay float."""
+    from onnx import TensorProto, helper, numpy_helper
+
+    g = model.graph
+    inits = {i.name: i for i in g.initializer}
+    new_nodes = []
+    done = set()
+    for node in g.node:
+        if node.op_type == "Conv" and node.input[1] in qparams:
+            w_name = node.input[1]
+            p = qparams[w_name]
+            if w_name not in inits:
+                raise ExportError(f"conv weight {w_name} is not an initialiser")
+            if w_name not in done:
+                g.initializer.remove(inits[w_name])
+                g.initializer.extend(
+                    [
+                        numpy_helper.from_array(p["w_int"], f"{w_name}_int8"),
+                        numpy_helper.from_array(p["w_scale"], f"{w_name}_scale"),
+                        numpy_helper.from_array(
+                            np.zeros_like(p["w_scale"], dtype=np.int8), f"{w_name}_zero"
+                        ),
+                    ]
+                )
+                new_nodes.append(
+                    helper.make_node(
+                        "DequantizeLinear",
+                        [f"{w_name}_int8", f"{w_name}_scale", f"{w_name}_zero"],
+                        [w_name],
+                        name=f"{w_name}_dequantize",
+                        axis=0,
+                    )
+                )
+                done.add(w_name)
+            x = node.input[0]
+            stem = f"{w_name.removesuffix('.weight')}.input"
+            g.initializer.extend(
+                [
+                    helper.make_tensor(f"{stem}_scale", TensorProto.FLOAT, [], [p["in_scale"]]),
+                    helper.make_tensor(f"{stem}_zero", TensorProto.UINT8, [], [p["in_zero"]]),
+                ]
+            )
+            new_nodes += [
+                helper.make_node(
+                    "QuantizeLinear",
+                    [x, f"{stem}_scale", f"{stem}_zero"],
+                    [f"{stem}_q"],
+                    name=f"{stem}_quantize",
+                ),
+                helper.make_node(
+                    "DequantizeLinear",
+                    [f"{stem}_q", f"{stem}_scale", f"{stem}_zero"],
+                    [f"{stem}_dq"],
+                    name=f"{stem}_dequantize",
+                ),
+            ]
+            node.input[0] = f"{stem}_dq"
+        new_nodes.append(node)
+    plain = [n.input[1] for n in g.node if n.op_type == "Conv" and n.input[1] not in done]
+    if plain:
+        raise ExportError(f"convolutions without quantisation parameters: {plain}")
+    del g.node[:]
+    g.node.extend(new_nodes)
+
+
+def remove_identities(model) -> None:
+    """The exporter turns shared constants into Identity nodes; point consumers at the source."""
+    g = model.graph
+    outputs = {o.name for o in g.output}
+    alias = {
+        n.output[0]: n.input[0]
+        for n in g.node
+        if n.op_type == "Identity" and n.output[0] not in outputs
+    }
+    keep = [n for n in g.node if not (n.op_type == "Identity" and n.output[0] in alias)]
+    for n in keep:
+        for i, name in enumerate(n.input):
+            while name in alias:
+                name = alias[name]
+            n.input[i] = name
+    del g.node[:]
+    g.node.extend(keep)
+
+
+# --- export and check -----------------------------------------------------------------------
+
+
+def to_onnx(module: nn.Module, cfg: NetConfig, kind: GraphKind, feed: dict):
+    import onnx
+
+    buf = io.BytesIO()
+    args = tuple(feed[n] for n in kind.inputs)
+    with warnings.catch_warnings():
+        # The size check in Encoder.forward is a Python branch: fine to trace as constant.
+        warnings.simplefilter("ignore", torch.jit.TracerWarning)
+        torch.onnx.export(
+            module,
+            args,
+            buf,
+            dynamo=False,
+            opset_version=OPSET,
+            do_constant_folding=True,
+            input_names=list(kind.inputs),
+            output_names=list(kind.outputs),
+            dynamic_axes=dynamic_axes(cfg, kind.inputs + kind.outputs),
+        )
+    model = onnx.load_from_string(buf.getvalue())
+    remove_identities(model)
+    return model
+
+
+def run_onnxruntime(model_bytes: bytes, feed: dict[str, torch.Tensor]) -> list[np.ndarray]:
+    import onnxruntime as ort
+
+    opts = ort.SessionOptions()
+    opts.intra_op_num_threads = 1
+    sess = ort.InferenceSession(model_bytes, opts, providers=["CPUExecutionProvider"])
+    names = [i.name for i in sess.get_inputs()]
+    return sess.run(None, {n: feed[n].numpy() for n in names})
+
+
+def check_parity(
+    model_bytes: bytes, reference: nn.Module, kind: GraphKind, feed: dict, precision: str
+) -> dict:
+    with torch.no_grad():
+        ref = reference(*(feed[n] for n in kind.inputs))
+    ref = ref if isinstance(ref, tuple) else (ref,)
+    got = run_onnxruntime(model_bytes, feed)
+    worst, mean = 0.0, 0.0
+    for name, r, o in zip(kind.outputs, ref, got, strict=True):
+        if tuple(r.shape) != o.shape:
+            raise ExportError(
+                f"{name}: onnxruntime gives shape {o.shape}, PyTorch {tuple(r.shape)}"
+            )
+        diff = np.abs(r.numpy() - o)
+        worst = max(worst, float(diff.max()))
+        mean = max(mean, float(diff.mean()))
+    tol = TOLERANCE[precision]
+    if not worst <= tol:
+        raise ExportError(
+            f"{precision} {kind.task}: onnxruntime differs from PyTorch by {worst:.3g} "
+            f"(tolerance {tol:g})"
+        )
+    return {"max_abs": worst, "mean_abs": mean, "tolerance": tol}
+
+
+def sha256_bytes(data: bytes) -> str:
+    return hashlib.sha256(data).hexdigest()
+
+
+def atomic_write_bytes(path: Path, data: bytes) -> None:
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_bytes(data)
+    os.replace(tmp, path)
+
+
+@dataclass
+class ExportInfo:
+    """What the manifest says about where a model came from."""
+
+    size: str
+    version: str = "0.1.0"
+    training: dict | None = None
+    validation: dict | None = None
+    source: str = ""
+    licence: str = LICENCE
+
+
+def architecture(cfg: NetConfig, size: str, kind: GraphKind) -> dict:
+    net = ReshadeNet(cfg).eval()
+    flops = conv_flops(net, *FLOPS_SIZE)
+    part = {"": "all", "-encoder": "encoder", "-decoder": "decoder"}[kind.suffix]
+    module = {"all": net, "encoder": net.encoder, "decoder": net.decoder}[part]
+    gflops = (flops["encoder"] + flops["decoder"] if part == "all" else flops[part]) / 1e9
+    return {
+        "size": size,
+        "widths": list(cfg.widths),
+        "convs": list(cfg.convs),
+        "parameters": count_parameters(module),
+        "gflops_at_384x640": round(gflops, 4),
+    }
+
+
+def manifest(
+    name: str,
+    kind: GraphKind,
+    precision: str,
+    onnx_bytes: bytes,
+    cfg: NetConfig,
+    info: ExportInfo,
+    parity: dict,
+) -> dict:
+    specs = tensor_specs(cfg)
+    validation = dict(info.validation or {})
+    validation["onnxruntime_vs_pytorch"] = parity
+    return {
+        "format": FORMAT,
+        "name": name,
+        "version": info.version,
+        "task": kind.task,
+        "precision": precision,
+        "file": f"{name}.onnx",
+        "sha256": sha256_bytes(onnx_bytes),
+        "inputs": [specs[n] for n in kind.inputs],
+        "outputs": [specs[n] for n in kind.outputs],
+        "size_multiple": ALIGN,
+        "image": IMAGE,
+        "disparity_encoding": DISPARITY_ENCODING,
+        "camera": CAMERA,
+        "architecture": architecture(cfg, info.size, kind),
+        "training": info.training,
+        "validation": validation,
+        "licence": info.licence,
+        "source": info.source,
+    }
+
+
+def export_precision(
+    net: ReshadeNet,
+    precision: str,
+    out_dir: Path,
+    stem: str,
+    info: ExportInfo,
+    split: bool,
+    height: int,
+    width: int,
+    camera: tuple[float, float, float] = (0.12, -0.05, 0.2),
+) -> list[Path]:
+    """Writes the single graph (and the split pair) for `net` at `precision`; returns the
+    manifest paths. `net` is float, or quantised (calibrated) for int8."""
+    import onnx
+
+    if height % ALIGN or width % ALIGN:
+        raise ExportError(f"--height/--width must be multiples of {ALIGN}, got {height}x{width}")
+    if (precision == "int8") != is_quantized(net):
+        raise ExportError(
+            "int8 export needs a quantised network (QAT checkpoint or --calibration); "
+            "fp32/fp16 need a float one"
+        )
+    net = net.eval()
+    cfg = net.cfg
+    feed = {**parity_inputs(height, width), "camera": torch.tensor([camera])}
+    qparams: dict[str, dict] = {}
+    float_net = net
+    if precision == "int8":
+        float_net, qparams = dequantized_float_net(net)
+    written = []
+    out_dir.mkdir(parents=True, exist_ok=True)
+    for kind in (SINGLE, ENCODER, DECODER) if split else (SINGLE,):
+        name = f"{stem}{kind.suffix}"
+        gfeed = graph_inputs(net, kind, feed)
+        module = graph_module(float_net, kind)
+        if precision == "fp16":
+            module = HalfBoundary(module)
+        model = to_onnx(module, cfg, kind, gfeed)
+        if precision == "int8":
+            insert_conv_qdq(model, qparams)
+        try:
+            onnx.checker.check_model(model, full_check=True)
+        except onnx.checker.ValidationError as err:
+            raise ExportError(f"{name}: exported graph fails onnx.checker: {err}") from err
+        data = model.SerializeToString()
+        parity = check_parity(data, graph_module(net, kind), kind, gfeed, precision)
+        parity["input"] = f"parity_inputs({height}, {width}), camera {list(camera)}"
+        body = manifest(name, kind, precision, data, cfg, info, parity)
+        atomic_write_bytes(out_dir / f"{name}.onnx", data)
+        atomic_write_bytes(out_dir / f"{name}.json", (json.dumps(body, indent=2) + "\n").encode())
+        written.append(out_dir / f"{name}.json")
+    return written
+
+
+# --- provenance from the checkpoint ---------------------------------------------------------
+
+
+def _train_command(ckpt_path: Path, ckpt: dict) -> str:
+    config = ckpt_path.parent / "config.json"
+    if config.is_file():
+        try:
+            return json.loads(config.read_text())["command"]
+        except (ValueError, KeyError):
+            pass
+    args = ckpt.get("args") or {}
+    parts = ["reshader-train", "train"]
+    for k in ("data", "val_data", "run_dir", "size", "steps", "batch_size", "crop", "seed"):
+        if args.get(k) is not None:
+            parts += [f"--{k.replace('_', '-')}", str(args[k])]
+    return " ".join(shlex.quote(p) for p in parts)
+
+
+def _train_wall_time(ckpt_path: Path) -> float | None:
+    """Sum of the training segments in log.csv (elapsed_s restarts at every resume)."""
+    import csv
+
+    log = ckpt_path.parent / "log.csv"
+    if not log.is_file():
+        return None
+    total, last = 0.0, 0.0
+    with open(log, newline="") as f:
+        for row in csv.DictReader(f):
+            t = float(row["elapsed_s"])
+            if t < last:
+                total += last
+            last = t
+    return round(total + last, 1)
+
+
+def training_info(ckpt_path: Path, ckpt: dict) -> dict:
+    args = ckpt.get("args") or {}
+    command = _train_command(ckpt_path, ckpt)
+    steps = int(ckpt.get("base_step", ckpt.get("step", 0)) or 0)
+    wall = _train_wall_time(ckpt_path)
+    data = str(args.get("data", "unknown"))
+    if "quantization" in ckpt:
+        base = Path(ckpt["base_checkpoint"])
+        command = f"{_train_command(base, ckpt)} && {ckpt['qat_command']}"
+        wall = (_train_wall_time(base) or 0.0) + float(ckpt.get("qat_wall_time_s", 0.0))
+        steps += int(ckpt.get("qat_steps", 0))
+        if ckpt.get("qat_data") and ckpt["qat_data"] != data:
+            data = f"{data} (QAT: {ckpt['qat_data']})"
+    return {
+        "command": command,
+        "data": data,
+        "feature_network": ckpt.get("feature_net", "unknown"),
+        "steps": steps,
+        "wall_time_s": wall,
+    }
+
+
+def size_name(cfg: NetConfig) -> str:
+    for name, c in SIZES.items():
+        if c == cfg:
+            return name
+    return "custom"
+
+
+# --- command line ---------------------------------------------------------------------------
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "checkpoint", type=Path, help="training (.pt) or quantised (quantize) checkpoint"
+    )
+    p.add_argument("--out", type=Path, required=True, help="output folder")
+    p.add_argument("--precision", nargs="+", choices=PRECISIONS, default=["fp32"])
+    p.add_argument("--split", action="store_true", help="also write the encoder/decoder pair")
+    p.add_argument("--height", type=int, default=384, help="trace and parity-check height")
+    p.add_argument("--width", type=int, default=640, help="trace and parity-check width")
+    p.add_argument("--size-name", help="name part after reshade- (default: lite/full/custom)")
+    p.add_argument("--metrics", type=Path, help="JSON of validation metrics for the manifest")
+    p.add_argument("--calibration", type=Path, help="dataset folder: int8 by PTQ of a float net")
+    p.add_argument("--calibration-batches", type=int, default=16)
+    p.add_argument("--calibration-crop", type=int, default=128)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--version", default="0.1.0", help="model version for the manifest")
+
+
+def _load_metrics(path: Path | None) -> dict | None:
+    if path is None:
+        return None
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, ValueError) as err:
+        raise ExportError(f"{path}: cannot read metrics JSON ({err})") from err
+    if not isinstance(data, dict):
+        raise ExportError(f"{path}: metrics must be a JSON object")
+    return data
+
+
+def networks_for(args, net: ReshadeNet, ckpt: dict) -> dict[str, tuple[ReshadeNet, str]]:
+    """precision -> (network, name suffix); PTQ int8 models are named ...-int8-ptq."""
+    quantized = is_quantized(net)
+    out = {}
+    for precision in args.precision:
+        if precision != "int8":
+            if quantized:
+                raise ExportError(
+                    f"{args.checkpoint}: a quantised checkpoint exports only int8; "
+                    "export fp32/fp16 from its base checkpoint"
+                )
+            out[precision] = (net, precision)
+        elif quantized:
+            out[precision] = (net, "int8")
+        elif args.calibration is None:
+            raise ExportError(
+                f"{args.checkpoint}: float checkpoint: int8 needs --calibration DATA (PTQ) or a "
+                "checkpoint from `reshader-train quantize` (QAT)"
+            )
+        else:
+            q = quantize_network(copy.deepcopy(net))
+            crops = training_crops(
+                args.calibration, args.calibration_batches, 4, args.calibration_crop, args.seed
+            )
+            calibrate(q, crops)
+            out[precision] = (q, "int8-ptq")
+    return out
+
+
+def run(args: argparse.Namespace) -> int:
+    from .data import DatasetError
+
+    try:
+        net, ckpt = load_any_checkpoint(args.checkpoint)
+        size = args.size_name or size_name(net.cfg)
+        base_validation = _load_metrics(args.metrics)
+        nets = networks_for(args, net, ckpt)
+        command = command_line("export", args, ("checkpoint",))
+        for precision, (model, suffix) in nets.items():
+            validation = dict(base_validation or {})
+            if precision == "int8":
+                method = "qat" if suffix == "int8" else "ptq"
+                validation["quantization"] = {**SCHEME, "method": method}
+            info = ExportInfo(
+                size=size,
+                version=args.version,
+                training=training_info(args.checkpoint, ckpt),
+                validation=validation,
+                source=f"{command} (torch {torch.__version__}, opset {OPSET}; checkpoint "
+                f"{args.checkpoint.name} step {ckpt.get('step')})",
+            )
+            for path in export_precision(
+                model,
+                precision,
+                args.out,
+                f"reshade-{size}-{suffix}",
+                info,
+                args.split,
+                args.height,
+                args.width,
+            ):
+                parity = json.loads(path.read_text())["validation"]["onnxruntime_vs_pytorch"]
+                print(f"{path.with_suffix('.onnx')}: max |ort - torch| {parity['max_abs']:.2e}")
+    except (ExportError, DatasetError, FileNotFoundError, ValueError) as err:
+        print(f"export: {err}", file=sys.stderr)
+        return 2
+    return 0

@@ -1,0 +1,337 @@
+"""Int8 quantisation of the reshading network: fake-quantised convolutions, calibration (the
+post-training baseline) and quantisation-aware fine-tuning (`reshader-train quantize`).
+
+Only the convolutions are quantised: per-channel symmetric int8 weights and one per-tensor
+asymmetric uint8 quantiser on each convolution's input. LeakyReLU, Resize, Concat, tanh, the
+camera MLP and its broadcast stay in float: tract 0.23.9 cannot declutter a dequantised tensor
+pushed through the camera features' Expand and has no QLinearLeakyRelu. Exported (see
+export.py), each quantiser becomes QuantizeLinear -> DequantizeLinear in front of a Conv whose
+weight is an int8 initialiser followed by DequantizeLinear.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shlex
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import nn
+
+from .data import Augment, DatasetError, ReshadeDataset
+from .model import NetConfig, ReshadeNet
+
+ACT_QMIN, ACT_QMAX = 0, 255
+WEIGHT_QMIN, WEIGHT_QMAX = -128, 127
+# Symmetric weights use -127..127 so that zero stays exact and -128 is never produced.
+WEIGHT_LEVELS = 127
+SCHEME = {
+    "regions": "convolutions only (conv inputs and weights)",
+    "weights": "int8, per output channel, symmetric (zero point 0)",
+    "activations": "uint8, per tensor, asymmetric (min/max observers)",
+    "float_ops": ["LeakyRelu", "Resize", "Concat", "Expand", "Tanh", "camera MLP (Gemm)"],
+}
+EMA_MOMENTUM = 0.01
+
+
+class ActQuant(nn.Module):
+    """Per-tensor uint8 fake quantisation with a min/max observer (running or moving average)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.register_buffer("lo", torch.tensor(float("inf")))
+        self.register_buffer("hi", torch.tensor(float("-inf")))
+        self.observing = False
+        self.momentum: float | None = None  # None: running min/max, else moving average
+
+    def calibrated(self) -> bool:
+        return bool(torch.isfinite(self.lo) and torch.isfinite(self.hi))
+
+    @torch.no_grad()
+    def observe(self, x: torch.Tensor) -> None:
+        lo, hi = x.amin(), x.amax()
+        if self.momentum is None or not self.calibrated():
+            self.lo.copy_(torch.minimum(self.lo, lo))
+            self.hi.copy_(torch.maximum(self.hi, hi))
+        else:
+            self.lo.lerp_(lo, self.momentum)
+            self.hi.lerp_(hi, self.momentum)
+
+    def qparams(self) -> tuple[torch.Tensor, torch.Tensor]:
+        # The range always holds 0 so that zero padding and LeakyReLU's zero are exact.
+        lo = torch.clamp(self.lo, max=0.0)
+        hi = torch.clamp(self.hi, min=0.0)
+        scale = torch.clamp((hi - lo) / (ACT_QMAX - ACT_QMIN), min=1e-8)
+        zero = torch.clamp(torch.round(-lo / scale), ACT_QMIN, ACT_QMAX).to(torch.int32)
+        return scale.reshape(1), zero.reshape(1)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        if self.observing:
+            self.observe(x)
+        scale, zero = self.qparams()
+        return torch.fake_quantize_per_tensor_affine(x, scale, zero, ACT_QMIN, ACT_QMAX)
+
+
+class QuantConv2d(nn.Module):
+    """A Conv2d whose input and weights are fake-quantised (when `enabled`)."""
+
+    def __init__(self, conv: nn.Conv2d) -> None:
+        super().__init__()
+        self.conv = conv
+        self.act = ActQuant()
+        self.enabled = True
+
+    def weight_qparams(self) -> tuple[torch.Tensor, torch.Tensor]:
+        absmax = self.conv.weight.detach().abs().amax(dim=(1, 2, 3))
+        scale = torch.clamp(absmax / WEIGHT_LEVELS, min=1e-12)
+        return scale, torch.zeros_like(scale, dtype=torch.int32)
+
+    def quantized_weight(self) -> torch.Tensor:
+        scale, zero = self.weight_qparams()
+        return torch.fake_quantize_per_channel_affine(
+            self.conv.weight, scale, zero, 0, WEIGHT_QMIN, WEIGHT_QMAX
+        )
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        if not self.enabled:
+            if self.act.observing:
+                self.act.observe(x)
+            return self.conv(x)
+        return self.conv._conv_forward(self.act(x), self.quantized_weight(), self.conv.bias)
+
+
+def quantize_network(net: ReshadeNet) -> ReshadeNet:
+    """Wraps every Conv2d of `net` (in place) in a QuantConv2d; returns `net`."""
+    for module in list(net.modules()):
+        for name, child in module.named_children():
+            if isinstance(child, nn.Conv2d):
+                setattr(module, name, QuantConv2d(child))
+    return net
+
+
+def quant_convs(net: nn.Module) -> list[QuantConv2d]:
+    return [m for m in net.modules() if isinstance(m, QuantConv2d)]
+
+
+def is_quantized(net: nn.Module) -> bool:
+    return bool(quant_convs(net))
+
+
+def set_mode(net: nn.Module, *, enabled: bool, observing: bool, momentum: float | None) -> None:
+    for q in quant_convs(net):
+        q.enabled = enabled
+        q.act.observing = observing
+        q.act.momentum = momentum
+
+
+def check_calibrated(net: nn.Module) -> None:
+    missing = [i for i, q in enumerate(quant_convs(net)) if not q.act.calibrated()]
+    if missing:
+        raise ValueError(f"quantised convolutions {missing} have no calibrated input range")
+
+
+@torch.no_grad()
+def calibrate(net: ReshadeNet, batches) -> int:
+    """Post-training calibration: running min/max of every conv input over `batches`
+    (dicts with image, disparity, camera). Returns the number of samples seen."""
+    was_training = net.training
+    net.eval()
+    set_mode(net, enabled=False, observing=True, momentum=None)
+    seen = 0
+    for b in batches:
+        net(b["image"], b["disparity"], b["camera"])
+        seen += b["image"].shape[0]
+    set_mode(net, enabled=True, observing=False, momentum=None)
+    net.train(was_training)
+    if seen == 0:
+        raise ValueError("calibration needs at least one batch")
+    check_calibrated(net)
+    return seen
+
+
+def training_crops(
+    root: Path, count: int, batch_size: int, crop: int, seed: int
+) -> Iterator[dict[str, torch.Tensor]]:
+    """`count` batches of augmented training crops from a dataset folder, reproducible by seed."""
+    dataset = ReshadeDataset(root, crop=crop, augment=Augment())
+    torch.manual_seed(seed)  # the dataset seeds its augmentation generator from torch
+    order = np.random.default_rng(seed).permutation(max(len(dataset), count * batch_size))
+    for i in range(count):
+        idx = order[i * batch_size : (i + 1) * batch_size] % len(dataset)
+        samples = [dataset[int(j)] for j in idx]
+        yield {k: torch.stack([s[k] for s in samples]) for k in samples[0]}
+
+
+def build_quantized(cfg: NetConfig, state: dict) -> ReshadeNet:
+    net = quantize_network(ReshadeNet(cfg))
+    net.load_state_dict(state)
+    set_mode(net, enabled=True, observing=False, momentum=None)
+    check_calibrated(net)
+    return net.eval()
+
+
+def load_any_checkpoint(path: Path) -> tuple[ReshadeNet, dict]:
+    """A float training checkpoint or a quantised one written by `quantize` (evaluation mode)."""
+    from .evaluate import load_checkpoint_model
+
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: checkpoint not found")
+    ckpt = torch.load(path, map_location="cpu", weights_only=False)
+    if "quantization" not in ckpt:
+        return load_checkpoint_model(path)
+    try:
+        net = build_quantized(NetConfig.from_json(ckpt["net_config"]), ckpt["model"])
+    except (KeyError, RuntimeError) as err:
+        raise ValueError(f"{path}: unreadable quantised checkpoint ({err})") from err
+    return net, ckpt
+
+
+def command_line(command: str, args: argparse.Namespace, positional: tuple[str, ...] = ()) -> str:
+    """The `reshader-train` command line equivalent to parsed `args` (for provenance)."""
+    parts = ["reshader-train", command, *(str(getattr(args, p)) for p in positional)]
+    for key, value in vars(args).items():
+        if key.startswith("_") or key == "command" or key in positional:
+            continue
+        if value is None or value is False:
+            continue
+        flag = f"--{key.replace('_', '-')}"
+        if value is True:
+            parts.append(flag)
+        elif isinstance(value, (list, tuple)):
+            parts += [flag, *map(str, value)]
+        else:
+            parts += [flag, str(value)]
+    return shlex.join(parts)
+
+
+# --- `reshader-train quantize`: quantisation-aware fine-tuning --------------------------------
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("checkpoint", type=Path, help="fp32 training checkpoint (.pt)")
+    p.add_argument("--data", type=Path, required=True, help="training dataset folder")
+    p.add_argument("--val-data", type=Path, help="held-out folder: PSNR of fp32 / PTQ / QAT")
+    p.add_argument("--out", type=Path, required=True, help="quantised checkpoint to write (.pt)")
+    p.add_argument("--steps", type=int, default=2000, help="fine-tuning steps")
+    p.add_argument("--lr", type=float, default=1e-5)
+    p.add_argument("--batch-size", type=int, default=4)
+    p.add_argument("--crop", type=int, default=128)
+    p.add_argument("--calib-batches", type=int, default=16, help="batches for the PTQ start")
+    p.add_argument(
+        "--freeze-observers",
+        type=float,
+        default=0.5,
+        help="fraction of --steps after which activation ranges stop moving",
+    )
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--threads", type=int, default=0, help="torch threads (0: default)")
+    p.add_argument("--val-examples", type=int, default=16)
+    p.add_argument("--feature-net", default="auto", help="as for train (auto|vgg19|hed-vgg16)")
+    p.add_argument("--vgg-weights", help="torchvision VGG-19 state dict")
+    p.add_argument("--feature-precision", choices=("auto", "float32", "bfloat16"), default="auto")
+    p.add_argument("--log-every", type=int, default=50)
+
+
+@torch.no_grad()
+def held_out_psnr(net: ReshadeNet, root: Path, count: int) -> dict[str, float]:
+    from .evaluate import masked_psnr, reshade
+
+    net.eval()
+    val = ReshadeDataset(root, crop=None, augment=None)
+    pin, pout = [], []
+    for i in range(min(count, len(val))):
+        s = val[i]
+        pin.append(masked_psnr(s["image"], s["target"], s["mask"]))
+        ours = reshade(net, s["image"], s["disparity"], s["camera"])
+        pout.append(masked_psnr(ours, s["target"], s["mask"]))
+    return {"psnr_input": float(np.mean(pin)), "psnr": float(np.mean(pout)), "count": len(pin)}
+
+
+def qat(args: argparse.Namespace) -> dict:
+    from .evaluate import load_checkpoint_model
+    from .features import load_feature_net
+    from .losses import ReshadeLoss, bf16_is_fast
+
+    if args.threads > 0:
+        torch.set_num_threads(args.threads)
+    t0 = time.time()
+    float_net, base = load_checkpoint_model(args.checkpoint)
+    net = quantize_network(load_checkpoint_model(args.checkpoint)[0])
+    calibrate(
+        net, training_crops(args.data, args.calib_batches, args.batch_size, args.crop, args.seed)
+    )
+    validation: dict[str, dict] = {}
+    if args.val_data:
+        validation["fp32"] = held_out_psnr(float_net, args.val_data, args.val_examples)
+        validation["int8_ptq"] = held_out_psnr(net, args.val_data, args.val_examples)
+
+    feature_net = load_feature_net(args.feature_net, args.vgg_weights)
+    bf16 = args.feature_precision == "bfloat16" or (
+        args.feature_precision == "auto" and bf16_is_fast(torch.device("cpu"))
+    )
+    criterion = ReshadeLoss(feature_net, feature_dtype=torch.bfloat16 if bf16 else torch.float32)
+    if base.get("feature_net") and base["feature_net"] != feature_net.ident:
+        print(
+            f"warning: {args.checkpoint} was trained with {base['feature_net']}; fine-tuning "
+            f"with {feature_net.ident}",
+            file=sys.stderr,
+        )
+    opt = torch.optim.Adam(net.parameters(), lr=args.lr)
+    freeze_at = int(args.freeze_observers * args.steps)
+    crops = training_crops(args.data, args.steps, args.batch_size, args.crop, args.seed + 1)
+    net.train()
+    for step, b in enumerate(crops):
+        observing = step < freeze_at
+        set_mode(net, enabled=True, observing=observing, momentum=EMA_MOMENTUM)
+        loss, parts = criterion(
+            net(b["image"], b["disparity"], b["camera"]), b["target"], b["mask"]
+        )
+        if not torch.isfinite(loss):
+            raise FloatingPointError(f"QAT loss is {float(loss)} at step {step}: {parts}")
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        opt.step()
+        if (step + 1) % args.log_every == 0 or step + 1 == args.steps:
+            print(f"qat step {step + 1}/{args.steps} loss {parts['loss']:.4f}", file=sys.stderr)
+    set_mode(net, enabled=True, observing=False, momentum=None)
+    net.eval()
+    if args.val_data:
+        validation["int8_qat"] = held_out_psnr(net, args.val_data, args.val_examples)
+    return {
+        "model": net.state_dict(),
+        "net_config": net.cfg.to_json(),
+        "quantization": {**SCHEME, "method": "qat", "calibration_batches": args.calib_batches},
+        "step": int(base.get("step", 0)) + args.steps,
+        "feature_net": feature_net.ident,
+        "args": base.get("args", {}),
+        "base_checkpoint": str(args.checkpoint),
+        "base_step": base.get("step"),
+        "qat_command": command_line("quantize", args, ("checkpoint",)),
+        "qat_steps": args.steps,
+        "qat_wall_time_s": round(time.time() - t0, 1),
+        "qat_data": str(args.data),
+        "validation": validation,
+    }
+
+
+def run(args: argparse.Namespace) -> int:
+    from .features import FeatureNetError
+
+    try:
+        state = qat(args)
+    except (DatasetError, FeatureNetError, FileNotFoundError, ValueError) as err:
+        print(f"quantize: {err}", file=sys.stderr)
+        return 2
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = args.out.with_name(f".{args.out.name}.tmp")
+    torch.save(state, tmp)
+    tmp.replace(args.out)
+    print(json.dumps(state["validation"], indent=2))
+    print(f"quantised checkpoint: {args.out}")
+    return 0

@@ -1,0 +1,277 @@
+import base64
+import copy
+import hashlib
+import json
+from pathlib import Path
+
+import numpy as np
+import onnx
+import pytest
+import torch
+
+from reshader_train import cli
+from reshader_train.export import (
+    DECODER,
+    ENCODER,
+    SINGLE,
+    TOLERANCE,
+    ExportError,
+    ExportInfo,
+    export_precision,
+    parity_inputs,
+    run_onnxruntime,
+)
+from reshader_train.model import EncoderGraph, ReshadeNet, net_config
+from reshader_train.quantize import calibrate, quantize_network, training_crops
+from reshader_train.synthetic import write_dataset
+
+TINY = "4,4,4,4,4,4"
+H, W = 32, 64
+SCHEMA_KEYS = {
+    "format", "name", "version", "task", "precision", "file", "sha256", "inputs", "outputs",
+    "size_multiple", "image", "disparity_encoding", "camera", "architecture", "training",
+    "validation", "licence", "source",
+}  # fmt: skip
+FIXTURES = Path(__file__).resolve().parents[2] / "fixtures"
+
+
+@pytest.fixture(scope="module")
+def data(tmp_path_factory):
+    return write_dataset(tmp_path_factory.mktemp("ds") / "train", 3, 32, 32, seed=0)
+
+
+@pytest.fixture(scope="module")
+def nets(data):
+    torch.manual_seed(0)
+    net = ReshadeNet(net_config(TINY)).eval()
+    # A visible residual: the default last layer starts the network near the identity.
+    torch.nn.init.normal_(net.decoder.out.weight, std=0.3)
+    q = quantize_network(copy.deepcopy(net))
+    calibrate(q, training_crops(data, 2, 2, 32, seed=0))
+    return {"fp32": net, "fp16": net, "int8": q.eval()}
+
+
+@pytest.fixture(scope="module")
+def exported(nets, tmp_path_factory):
+    out = tmp_path_factory.mktemp("onnx")
+    info = ExportInfo(size="tiny", validation={"psnr": 30.0})
+    for precision, net in nets.items():
+        export_precision(net, precision, out, f"reshade-tiny-{precision}", info, True, H, W)
+    return out
+
+
+def random_feed(seed=1):
+    g = torch.Generator().manual_seed(seed)
+    return {
+        "image": torch.rand(1, 3, H, W, generator=g),
+        "disparity": torch.rand(1, 1, H, W, generator=g),
+        "camera": torch.tensor([[0.15, -0.1, 0.25]]),
+    }
+
+
+def split_output(out, stem, feed):
+    enc = run_onnxruntime((out / f"{stem}-encoder.onnx").read_bytes(), feed)
+    skips = dict(zip(EncoderGraph.output_names, map(torch.from_numpy, enc), strict=True))
+    return run_onnxruntime((out / f"{stem}-decoder.onnx").read_bytes(), {**feed, **skips})[0]
+
+
+@pytest.mark.parametrize("precision", ["fp32", "fp16", "int8"])
+def test_onnx_matches_pytorch_within_tolerance(exported, nets, precision):
+    feed = random_feed()
+    with torch.no_grad():
+        ref = nets[precision](feed["image"], feed["disparity"], feed["camera"]).numpy()
+    got = run_onnxruntime((exported / f"reshade-tiny-{precision}.onnx").read_bytes(), feed)[0]
+    assert got.shape == (1, 3, H, W)
+    assert np.abs(got - ref).max() <= TOLERANCE[precision]
+    # The camera matters: a different camera gives a different image.
+    other = run_onnxruntime(
+        (exported / f"reshade-tiny-{precision}.onnx").read_bytes(),
+        {**feed, "camera": torch.zeros(1, 3)},
+    )[0]
+    assert np.abs(other - got).max() > 10 * TOLERANCE["fp32"]
+
+
+@pytest.mark.parametrize("precision", ["fp32", "fp16", "int8"])
+def test_split_pair_equals_single_graph(exported, precision):
+    feed = random_feed(2)
+    stem = f"reshade-tiny-{precision}"
+    single = run_onnxruntime((exported / f"{stem}.onnx").read_bytes(), feed)[0]
+    split = split_output(exported, stem, feed)
+    assert np.abs(single - split).max() <= 1e-5
+
+
+@pytest.mark.parametrize("precision", ["fp32", "fp16", "int8"])
+def test_manifests_describe_their_graphs(exported, precision):
+    for kind in (SINGLE, ENCODER, DECODER):
+        name = f"reshade-tiny-{precision}{kind.suffix}"
+        m = json.loads((exported / f"{name}.json").read_text())
+        assert set(m) == SCHEMA_KEYS
+        data = (exported / m["file"]).read_bytes()
+        assert m["sha256"] == hashlib.sha256(data).hexdigest()
+        assert (m["format"], m["name"], m["task"], m["precision"]) == (
+            "reshader-manifest/1",
+            name,
+            kind.task,
+            precision,
+        )
+        graph = onnx.load_from_string(data).graph
+        assert [i["name"] for i in m["inputs"]] == [i.name for i in graph.input]
+        assert [o["name"] for o in m["outputs"]] == [o.name for o in graph.output]
+        values = list(graph.input) + list(graph.output)
+        for spec, value in zip(m["inputs"] + m["outputs"], values, strict=True):
+            dims = value.type.tensor_type.shape.dim
+            assert value.type.tensor_type.elem_type == onnx.TensorProto.FLOAT
+            assert [d.dim_value or d.dim_param for d in dims] == spec["shape"]
+        assert m["size_multiple"] == 32
+        assert m["disparity_encoding"]["frequencies"] == 5
+        assert m["camera"]["convention"] == "opencv"
+        assert m["architecture"]["widths"] == [4, 4, 4, 4, 4, 4]
+        assert m["architecture"]["parameters"] > 0
+        assert m["architecture"]["gflops_at_384x640"] > 0
+        assert m["validation"]["psnr"] == 30.0
+        parity = m["validation"]["onnxruntime_vs_pytorch"]
+        assert parity["max_abs"] <= parity["tolerance"]
+    single = json.loads((exported / f"reshade-tiny-{precision}.json").read_text())
+    enc, dec = (
+        json.loads((exported / f"reshade-tiny-{precision}-{p}.json").read_text())
+        for p in ("encoder", "decoder")
+    )
+    assert (
+        enc["architecture"]["parameters"] + dec["architecture"]["parameters"]
+        == single["architecture"]["parameters"]
+    )
+
+
+def consumers(graph):
+    out = {}
+    for n in graph.node:
+        for i in n.input:
+            out.setdefault(i, []).append(n)
+    return out
+
+
+def test_int8_graph_quantises_only_convolution_inputs_and_weights(exported):
+    graph = onnx.load(exported / "reshade-tiny-int8.onnx").graph
+    users = consumers(graph)
+    inits = {i.name: i for i in graph.initializer}
+    convs = [n for n in graph.node if n.op_type == "Conv"]
+    quants = [n for n in graph.node if n.op_type == "QuantizeLinear"]
+    assert len(quants) == len(convs) == 13
+    for q in quants:  # activation Q feeds exactly one DQ, which feeds exactly one Conv input
+        (dq,) = users[q.output[0]]
+        assert dq.op_type == "DequantizeLinear"
+        (conv,) = users[dq.output[0]]
+        assert conv.op_type == "Conv" and conv.input[0] == dq.output[0]
+        assert inits[q.input[2]].data_type == onnx.TensorProto.UINT8
+    for conv in convs:
+        (wdq,) = [n for n in graph.node if conv.input[1] in n.output]
+        assert wdq.op_type == "DequantizeLinear"
+        assert inits[wdq.input[0]].data_type == onnx.TensorProto.INT8
+        assert inits[wdq.input[1]].dims == [inits[wdq.input[0]].dims[0]]  # per channel
+    dq_total = sum(n.op_type == "DequantizeLinear" for n in graph.node)
+    assert dq_total == 2 * len(convs)
+    for n in graph.node:  # the float ops never see a quantised tensor
+        if n.op_type in ("Expand", "LeakyRelu", "Resize", "Concat", "Gemm", "Tanh"):
+            for i in n.input:
+                assert not any(p.op_type in ("QuantizeLinear", "DequantizeLinear")
+                               for p in graph.node if i in p.output)  # fmt: skip
+
+
+def test_export_refuses_wrong_network_or_size(nets, tmp_path):
+    info = ExportInfo(size="tiny")
+    with pytest.raises(ExportError, match="int8 export needs a quantised network"):
+        export_precision(nets["fp32"], "int8", tmp_path, "x", info, False, H, W)
+    with pytest.raises(ExportError, match="multiples of 32"):
+        export_precision(nets["fp32"], "fp32", tmp_path, "x", info, False, 40, W)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_cli_exports_ptq_int8_with_provenance(data, tmp_path, capsys):
+    torch.manual_seed(0)
+    net = ReshadeNet(net_config(TINY))
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "config.json").write_text(json.dumps({"command": "reshader-train train --x 1"}))
+    (run / "log.csv").write_text("step,elapsed_s\n1,5.0\n2,10.0\n3,4.0\n")  # resumed once
+    ckpt = {"model": net.state_dict(), "net_config": net.cfg.to_json(), "step": 3,
+            "feature_net": "hed-test", "args": {"data": str(data)}}  # fmt: skip
+    torch.save(ckpt, run / "checkpoint.pt")
+    metrics = tmp_path / "m.json"
+    metrics.write_text(json.dumps({"psnr_fp32": 31.5}))
+    out = tmp_path / "out"
+    argv = ["export", str(run / "checkpoint.pt"), "--out", str(out), "--precision", "int8",
+            "--height", "32", "--width", "64", "--calibration", str(data),
+            "--calibration-batches", "1", "--calibration-crop", "32",
+            "--metrics", str(metrics)]  # fmt: skip
+    assert cli.main(argv) == 0
+    m = json.loads((out / "reshade-custom-int8-ptq.json").read_text())
+    assert m["training"] == {
+        "command": "reshader-train train --x 1",
+        "data": str(data),
+        "feature_network": "hed-test",
+        "steps": 3,
+        "wall_time_s": 14.0,
+    }
+    assert m["validation"]["psnr_fp32"] == 31.5
+    assert m["validation"]["quantization"]["method"] == "ptq"
+    assert cli.main(argv[:-4] + ["--calibration", str(tmp_path / "nowhere")]) == 2
+    assert "nowhere" in capsys.readouterr().err
+
+
+def test_quantize_fine_tunes_and_exports_qat(data, tmp_path):
+    torch.manual_seed(0)
+    net = ReshadeNet(net_config(TINY))
+    torch.save(
+        {"model": net.state_dict(), "net_config": net.cfg.to_json(), "step": 5,
+         "args": {"data": str(data)}},
+        tmp_path / "checkpoint.pt",
+    )  # fmt: skip
+    qat = tmp_path / "qat.pt"
+    argv = ["quantize", str(tmp_path / "checkpoint.pt"), "--data", str(data), "--out", str(qat),
+            "--steps", "2", "--batch-size", "2", "--crop", "32", "--calib-batches", "1",
+            "--val-data", str(data), "--val-examples", "1", "--threads", "1"]  # fmt: skip
+    assert cli.main(argv) == 0
+    state = torch.load(qat, weights_only=False)
+    assert state["quantization"]["method"] == "qat"
+    assert set(state["validation"]) == {"fp32", "int8_ptq", "int8_qat"}
+    moved = (
+        state["model"]["encoder.blocks.0.0.conv.weight"]
+        - net.state_dict()["encoder.blocks.0.0.weight"]
+    )
+    assert moved.abs().max() > 0
+    out = tmp_path / "out"
+    assert cli.main(["export", str(qat), "--out", str(out), "--precision", "int8", "--split",
+                     "--height", "32", "--width", "64"]) == 0  # fmt: skip
+    m = json.loads((out / "reshade-custom-int8-decoder.json").read_text())
+    assert m["validation"]["quantization"]["method"] == "qat"
+    assert m["training"]["steps"] == 7
+    assert "reshader-train quantize" in m["training"]["command"]
+    assert "--steps 2" in m["training"]["command"]
+
+
+def decode(b64, h, w):
+    return np.frombuffer(base64.b64decode(b64), dtype="<f4").reshape(1, 3, h, w)
+
+
+@pytest.mark.skipif(not (FIXTURES / "parity.json").exists(), reason="fixture not generated")
+def test_committed_fixture_is_consistent():
+    parity = json.loads((FIXTURES / "parity.json").read_text())
+    h, w = parity["height"], parity["width"]
+    base = parity_inputs(h, w)
+    assert float(base["image"].double().sum()) == pytest.approx(parity["input"]["image_sum"])
+    for manifest in sorted(FIXTURES.glob("*.json")):
+        if manifest.name == "parity.json":
+            continue
+        m = json.loads(manifest.read_text())
+        data = (FIXTURES / m["file"]).read_bytes()
+        assert hashlib.sha256(data).hexdigest() == m["sha256"], manifest
+    for case in parity["cases"]:
+        feed = {**base, "camera": torch.tensor([case["camera"]])}
+        for precision, p in parity["precisions"].items():
+            ref = decode(case[p["reference"]], h, w)
+            got = run_onnxruntime(
+                (FIXTURES / f"reshade-fixture-{precision}.onnx").read_bytes(), feed
+            )
+            assert np.abs(got[0] - ref).max() <= p["tolerance"], precision
+    dep = parity["camera_dependence"]
+    assert dep["max_abs_between_cameras"] > 100 * parity["precisions"]["fp32"]["tolerance"]

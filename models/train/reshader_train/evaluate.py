@@ -227,6 +227,7 @@ def run(args: argparse.Namespace) -> int:
             "gamma": EVAL_GAMMA,
             "lpips": lpips_note or "available",
             "splits": summary,
+            "examples": [{k: v for k, v in r.items() if not k.startswith("_")} for r in rows],
         }
         tmp = args.json.with_name(f".{args.json.name}.tmp")
         tmp.write_text(json.dumps(report, indent=2))

@@ -97,6 +97,7 @@ def test_evaluate_command(tmp_path, capsys):
     assert m["count"] == 2 and m["psnr_input"] > 10
     # A fresh network is near the identity: Ours within a fraction of a dB of Input.
     assert abs(m["gain_db"]) < 0.5
+    assert [e["example"] for e in result["examples"]] == ["00000", "00001"]
     with Image.open(sheet) as im:
         assert im.size == (4 * 40, 2 * 32)
 

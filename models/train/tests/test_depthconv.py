@@ -204,8 +204,10 @@ def test_network_size_follows_the_original_rounding():
 def test_area_resize_averages_blocks():
     img = np.arange(4 * 6 * 3, dtype=np.uint8).reshape(4, 6, 3)
     out = area_resize(img, 2, 3)
-    expected = img.reshape(2, 2, 3, 2, 3).astype(float).mean(axis=(1, 3))
-    assert np.array_equal(out, np.rint(expected).astype(np.uint8))
+    sums = img.reshape(2, 2, 3, 2, 3).astype(int).sum(axis=(1, 3))
+    assert np.array_equal(out, (sums + 2) // 4)  # 2x2 blocks: halves round up, as OpenCV's
+    out = area_resize(img[:3, :3], 1, 1)
+    assert out[0, 0].tolist() == np.rint(img[:3, :3].mean(axis=(0, 1))).tolist()
     flat = np.full((9, 7, 3), 77, np.uint8)
     assert np.all(area_resize(flat, 4, 3) == 77)  # non-integer factors keep a constant
 
@@ -265,3 +267,32 @@ def test_onnxruntime_matches_reference_disparity(real_model, form):
         max_rel, mean_rel = TOLERANCE[(form, photo)]
         assert e.pearson > 0.999, e
         assert e.max_rel < max_rel and e.mean_rel < mean_rel, e
+
+
+# --- the QNNPACK emulation used to check the reading of the graph --------------------------
+
+
+def test_qnnpack_requantize_rounds_ties_up_unlike_onnx():
+    from reshader_train.depthconv.qnnpack import requantize
+
+    acc = np.array([5, 7, 4, -3, 1000])
+    assert requantize(acc, np.float32(0.5)).tolist() == [3, 4, 2, -1, 500]
+    rng = np.random.default_rng(0)
+    acc = rng.integers(-(2**20), 2**20, size=10_000)
+    scale = np.float32(0.0123)
+    diff = requantize(acc, scale) - np.rint(acc * np.float64(scale))
+    assert np.abs(diff).max() <= 1 and np.mean(diff != 0) < 0.01
+
+
+def test_qnnpack_emulation_of_tiny_conv(tmp_path):
+    from reshader_train.depthconv.qnnpack import run_int8
+
+    rng = np.random.default_rng(2)
+    w_u8 = rng.integers(60, 200, size=(4, 3, 3, 3), dtype=np.uint8)
+    bias = rng.integers(-3000, 3000, size=4).astype(np.int32)
+    model, q = _tiny_model(tmp_path, w_u8, bias, 3)
+    x = rng.random((1, 3, 8, 6), dtype=np.float32)
+    y8, yq = run_int8(model, x)
+    expected = _expected_int8(x[0].astype(np.float64), w_u8, bias, q)
+    assert y8.dtype == np.uint8 and (yq.scale, yq.zero_point) == (pytest.approx(q[4]), q[5])
+    assert np.abs((y8.astype(np.int64) - yq.zero_point) * yq.scale - expected).max() <= q[4] * 1.001

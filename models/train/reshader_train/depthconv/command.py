@@ -20,7 +20,7 @@ from .caffe2_model import Caffe2Model, Caffe2ModelError, load_caffe2_model
 from .onnx_export import INPUT_NAME, OUTPUT_NAME, build_onnx
 from .preprocess import LONG_SIDE, MULTIPLE
 from .protobuf import ProtobufError
-from .verify import onnxruntime_errors, reference_pairs
+from .verify import emulation_agreement, onnxruntime_errors, reference_pairs
 
 NAME = "tiefenrausch"
 VERSION = "1.0.0"
@@ -44,6 +44,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default="qlinear",
         help="QLinearConv (default: tract runs it with int8 kernels) or QuantizeLinear/"
         "DequantizeLinear around float Conv",
+    )
+    parser.add_argument(
+        "--emulate",
+        action="store_true",
+        help="also run the numpy emulation of Caffe2's QNNPACK arithmetic (slow) and record "
+        "how many output levels equal the reference's in the int8 manifest",
     )
     parser.add_argument(
         "--min-pearson",
@@ -141,7 +147,9 @@ def _manifest(
     }
 
 
-def convert(source: Path, out: Path, int8_form: str, min_pearson: float) -> list[dict]:
+def convert(
+    source: Path, out: Path, int8_form: str, min_pearson: float, emulate: bool = False
+) -> list[dict]:
     """Convert, verify and write both models; returns the manifests written."""
     predict, init = source / "model/tiefenrausch.pb", source / "model/tiefenrausch_init.pb"
     licence = source / "LICENSE"
@@ -168,6 +176,11 @@ def convert(source: Path, out: Path, int8_form: str, min_pearson: float) -> list
                         f"{path.name} on {e.photo}: pearson {e.pearson:.6f} < {min_pearson}"
                     )
             staged.append((path, _manifest(model, precision, form, path, errors, sources)))
+        if emulate:
+            agreement = emulation_agreement(model, pairs)
+            for a in agreement:
+                print(f"QNNPACK emulation {a}")
+            staged[0][1]["validation"]["caffe2_qnnpack_emulation"] = agreement
         for path, manifest in staged:
             os.replace(path, out / path.name)
             text = json.dumps(manifest, indent=2) + "\n"
@@ -178,7 +191,7 @@ def convert(source: Path, out: Path, int8_form: str, min_pearson: float) -> list
 
 def run(args: argparse.Namespace) -> int:
     try:
-        convert(args.source, args.out, args.int8_form, args.min_pearson)
+        convert(args.source, args.out, args.int8_form, args.min_pearson, args.emulate)
     except (OSError, ProtobufError, Caffe2ModelError, ValueError) as err:
         print(f"reshader-train convert-depth: {err}", file=sys.stderr)
         return 1

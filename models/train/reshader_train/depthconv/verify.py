@@ -65,3 +65,22 @@ def onnxruntime_errors(model_path: Path, pairs: list[tuple[Path, Path]]) -> list
         (y,) = session.run(None, {input_name: x})
         out.append(disparity_errors(photo.name, y, reference))
     return out
+
+
+def emulation_agreement(model, pairs: list[tuple[Path, Path]]) -> list[dict]:
+    """How many output levels of the numpy QNNPACK emulation equal the reference's levels."""
+    from .qnnpack import run_int8
+
+    out = []
+    for photo, ref_path in pairs:
+        q8, q = run_int8(model, network_input(load_rgb(photo)))
+        ref_levels = np.rint(np.log(np.load(ref_path).astype(np.float64)) / q.scale) + q.zero_point
+        diff = np.abs(q8.astype(np.int64) - ref_levels)
+        out.append(
+            {
+                "photo": photo.name,
+                "identical_levels": float(np.mean(diff == 0)),
+                "max_level_difference": int(diff.max()),
+            }
+        )
+    return out

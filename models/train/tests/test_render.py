@@ -313,6 +313,33 @@ def test_render_command_writes_complete_resumable_examples(mi, tmp_path):
     np.testing.assert_array_equal(first, second)
 
 
+def test_render_command_with_one_thread_completes(tmp_path):
+    # Mitsuba's EXR writer deadlocks with a one-thread pool unless the writer works
+    # around it; the timeout only guards against that hang.
+    import subprocess
+    import sys
+
+    out = str(tmp_path / "data")
+    cmd = [
+        sys.executable,
+        "-m",
+        "reshader_train.cli",
+        "render",
+        "--out",
+        out,
+        "--count",
+        "1",
+        "--size",
+        "16x12",
+        "--spp",
+        "2",
+        "--threads",
+        "1",
+    ]
+    subprocess.run(cmd, check=True, timeout=300, capture_output=True)
+    assert os.path.isfile(os.path.join(out, "00000-000000", "meta.json"))
+
+
 def test_scene_file_with_random_materials_and_orbs(mi, tmp_path):
     xml = tmp_path / "room.xml"
     xml.write_text(

@@ -109,11 +109,20 @@ def make_camera(cam: dict, width: int, height: int) -> Camera:
 
 
 def _write_exr(mi, path: str, image: np.ndarray) -> None:
-    bitmap = mi.Bitmap(
-        np.ascontiguousarray(image, dtype=np.float32),
-        mi.Bitmap.PixelFormat.Y if image.shape[-1] == 1 else mi.Bitmap.PixelFormat.RGB,
-    )
-    bitmap.write(path)
+    import drjit as dr
+
+    channels = mi.Bitmap.PixelFormat.Y if image.shape[-1] == 1 else mi.Bitmap.PixelFormat.RGB
+    bitmap = mi.Bitmap(np.ascontiguousarray(image, dtype=np.float32), channels)
+    # Mitsuba 3.9's EXR writer deadlocks when Dr.Jit's pool has a single thread
+    # (--threads 1): give it two for the write.
+    threads = dr.thread_count()
+    if threads < 2:
+        dr.set_thread_count(2)
+    try:
+        bitmap.write(path)
+    finally:
+        if threads < 2:
+            dr.set_thread_count(threads)
 
 
 def _write_png(mi, path: str, image: np.ndarray) -> None:

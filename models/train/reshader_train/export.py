@@ -37,6 +37,7 @@ from .model import (
     ALIGN,
     DISPARITY_FREQUENCIES,
     SIZES,
+    CameraMLP,
     DecoderGraph,
     EncoderGraph,
     NetConfig,
@@ -45,6 +46,7 @@ from .model import (
     count_parameters,
 )
 from .quantize import (
+    INT8_FORMS,
     SCHEME,
     WEIGHT_LEVELS,
     QuantConv2d,
@@ -53,6 +55,7 @@ from .quantize import (
     is_quantized,
     load_any_checkpoint,
     quantize_network,
+    set_input_quantization,
     training_crops,
 )
 
@@ -61,11 +64,13 @@ FORMAT = "reshader-manifest/1"
 PRECISIONS = ("fp32", "fp16", "int8")
 FLOPS_SIZE = (384, 640)
 LICENCE = "MIT OR Apache-2.0"
-# Largest |onnxruntime - PyTorch| accepted on the parity input, per precision. fp32 differs
-# only by summation order; fp16 is compared with the float32 network (half-precision storage
-# and arithmetic); int8 with the same fake-quantised network in PyTorch (a value on a rounding
-# boundary may land one quantisation step away, which the next layers attenuate).
-TOLERANCE = {"fp32": 1e-4, "fp16": 2e-2, "int8": 2e-2}
+# |onnxruntime - PyTorch| accepted on the parity input, per precision (largest and mean). fp32
+# differs only by summation order; fp16 is compared with the float32 network (half-precision
+# storage and arithmetic); int8 with the same fake-quantised network in PyTorch, where a value
+# on a rounding boundary may land one quantisation step away (measured on the lite network at
+# 384x640: largest 1.2e-2, mean 1.7e-3).
+TOLERANCE = {"fp32": 1e-4, "fp16": 2e-2, "int8": 5e-2}
+MEAN_TOLERANCE = {"fp32": 1e-5, "fp16": 2e-3, "int8": 5e-3}
 
 IMAGE = {"color": "srgb", "range": [0, 1], "channel_order": "rgb", "mean": None, "std": None}
 DISPARITY_ENCODING = {
@@ -204,12 +209,28 @@ def graph_inputs(net: ReshadeNet, kind: GraphKind, feed: dict) -> dict[str, torc
 # --- precision transforms -------------------------------------------------------------------
 
 
+class FloatIsland(nn.Module):
+    """Keeps `inner` in float32 inside a float16 graph (tract 0.23.9 cannot type a float16
+    Gemm); the camera MLP is a few thousand multiply-adds, so this costs nothing."""
+
+    def __init__(self, inner: nn.Module) -> None:
+        super().__init__()
+        self.inner = inner.float()
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.inner(x.float()).half()
+
+
 class HalfBoundary(nn.Module):
-    """Runs `inner` in float16 with float32 inputs and outputs."""
+    """Runs `inner` in float16 with float32 inputs and outputs (camera MLP in float32)."""
 
     def __init__(self, inner: nn.Module) -> None:
         super().__init__()
         self.inner = copy.deepcopy(inner).half()
+        for module in list(self.inner.modules()):
+            for name, child in module.named_children():
+                if isinstance(child, CameraMLP):
+                    setattr(module, name, FloatIsland(child))
 
     def forward(self, *xs: torch.Tensor):
         out = self.inner(*(x.half() for x in xs))
@@ -252,10 +273,10 @@ def _conv_qparams(q: QuantConv2d) -> dict:
     }
 
 
-def insert_conv_qdq(model, qparams: dict[str, dict]) -> None:
-    """Rewrites every Conv whose weight is in `qparams`: QuantizeLinear -> DequantizeLinear on
-    its input (uint8, per tensor) and an int8 weight initialiser with a per-channel
-    DequantizeLinear. Nothing else is touched, so the float ops stay float."""
+def insert_conv_qdq(model, qparams: dict[str, dict], activations: bool = True) -> None:
+    """Rewrites every Conv whose weight is in `qparams`: an int8 weight initialiser with a
+    per-channel DequantizeLinear and, with `activations`, QuantizeLinear -> DequantizeLinear on
+    its input (uint8, per tensor). Nothing else is touched, so the float ops stay float."""
     from onnx import TensorProto, helper, numpy_helper
 
     g = model.graph
@@ -289,6 +310,9 @@ def insert_conv_qdq(model, qparams: dict[str, dict]) -> None:
                     )
                 )
                 done.add(w_name)
+            if not activations:
+                new_nodes.append(node)
+                continue
             x = node.input[0]
             stem = f"{w_name.removesuffix('.weight')}.input"
             g.initializer.extend(
@@ -392,13 +416,13 @@ def check_parity(
         diff = np.abs(r.numpy() - o)
         worst = max(worst, float(diff.max()))
         mean = max(mean, float(diff.mean()))
-    tol = TOLERANCE[precision]
-    if not worst <= tol:
+    tol, mean_tol = TOLERANCE[precision], MEAN_TOLERANCE[precision]
+    if not (worst <= tol and mean <= mean_tol):
         raise ExportError(
-            f"{precision} {kind.task}: onnxruntime differs from PyTorch by {worst:.3g} "
-            f"(tolerance {tol:g})"
+            f"{precision} {kind.task}: onnxruntime differs from PyTorch by {worst:.3g} at most "
+            f"and {mean:.3g} on average (tolerances {tol:g}, {mean_tol:g})"
         )
-    return {"max_abs": worst, "mean_abs": mean, "tolerance": tol}
+    return {"max_abs": worst, "mean_abs": mean, "tolerance": tol, "mean_tolerance": mean_tol}
 
 
 def sha256_bytes(data: bytes) -> str:
@@ -482,9 +506,11 @@ def export_precision(
     height: int,
     width: int,
     camera: tuple[float, float, float] = (0.12, -0.05, 0.2),
+    int8_form: str = "qdq",
 ) -> list[Path]:
     """Writes the single graph (and the split pair) for `net` at `precision`; returns the
-    manifest paths. `net` is float, or quantised (calibrated) for int8."""
+    manifest paths. `net` is float, or quantised (calibrated) for int8; `int8_form` is a key
+    of quantize.INT8_FORMS."""
     import onnx
 
     if height % ALIGN or width % ALIGN:
@@ -499,7 +525,12 @@ def export_precision(
     feed = {**parity_inputs(height, width), "camera": torch.tensor([camera])}
     qparams: dict[str, dict] = {}
     float_net = net
+    if int8_form not in INT8_FORMS:
+        raise ExportError(f"unknown int8 form {int8_form!r}: use one of {sorted(INT8_FORMS)}")
     if precision == "int8":
+        if int8_form == "weights":
+            net = copy.deepcopy(net)
+            set_input_quantization(net, False)
         float_net, qparams = dequantized_float_net(net)
     written = []
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -511,7 +542,7 @@ def export_precision(
             module = HalfBoundary(module)
         model = to_onnx(module, cfg, kind, gfeed)
         if precision == "int8":
-            insert_conv_qdq(model, qparams)
+            insert_conv_qdq(model, qparams, activations=int8_form == "qdq")
         try:
             onnx.checker.check_model(model, full_check=True)
         except onnx.checker.ValidationError as err:
@@ -607,6 +638,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--calibration", type=Path, help="dataset folder: int8 by PTQ of a float net")
     p.add_argument("--calibration-batches", type=int, default=16)
     p.add_argument("--calibration-crop", type=int, default=128)
+    p.add_argument(
+        "--int8-form",
+        choices=sorted(INT8_FORMS),
+        default="qdq",
+        help="qdq: conv inputs + weights quantised; weights: int8 weights only (name ...-wo)",
+    )
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--version", default="0.1.0", help="model version for the manifest")
 
@@ -665,7 +702,14 @@ def run(args: argparse.Namespace) -> int:
             validation = dict(base_validation or {})
             if precision == "int8":
                 method = "qat" if suffix == "int8" else "ptq"
-                validation["quantization"] = {**SCHEME, "method": method}
+                validation["quantization"] = {
+                    **SCHEME,
+                    "regions": INT8_FORMS[args.int8_form],
+                    "form": args.int8_form,
+                    "method": method,
+                }
+                if args.int8_form == "weights":
+                    suffix += "-wo"
             info = ExportInfo(
                 size=size,
                 version=args.version,
@@ -683,6 +727,7 @@ def run(args: argparse.Namespace) -> int:
                 args.split,
                 args.height,
                 args.width,
+                int8_form=args.int8_form,
             ):
                 parity = json.loads(path.read_text())["validation"]["onnxruntime_vs_pytorch"]
                 print(f"{path.with_suffix('.onnx')}: max |ort - torch| {parity['max_abs']:.2e}")

@@ -30,8 +30,14 @@ ACT_QMIN, ACT_QMAX = 0, 255
 WEIGHT_QMIN, WEIGHT_QMAX = -128, 127
 # Symmetric weights use -127..127 so that zero stays exact and -128 is never produced.
 WEIGHT_LEVELS = 127
+# Export forms: "qdq" quantises conv inputs and weights (integer convolutions where the engine
+# has them); "weights" stores int8 weights only (activations float: the engine dequantises the
+# weights at load and runs float convolutions, at fp32 speed with a quarter of the file).
+INT8_FORMS = {
+    "qdq": "convolutions only: QDQ on conv inputs (uint8 per tensor) and weights (int8)",
+    "weights": "convolution weights only (int8 per channel); activations float",
+}
 SCHEME = {
-    "regions": "convolutions only (conv inputs and weights)",
     "weights": "int8, per output channel, symmetric (zero point 0)",
     "activations": "uint8, per tensor, asymmetric (min/max observers)",
     "float_ops": ["LeakyRelu", "Resize", "Concat", "Expand", "Tanh", "camera MLP (Gemm)"],
@@ -85,6 +91,7 @@ class QuantConv2d(nn.Module):
         self.conv = conv
         self.act = ActQuant()
         self.enabled = True
+        self.quantize_input = True  # False: weight-only (the "weights" export form)
 
     def weight_qparams(self) -> tuple[torch.Tensor, torch.Tensor]:
         absmax = self.conv.weight.detach().abs().amax(dim=(1, 2, 3))
@@ -102,7 +109,8 @@ class QuantConv2d(nn.Module):
             if self.act.observing:
                 self.act.observe(x)
             return self.conv(x)
-        return self.conv._conv_forward(self.act(x), self.quantized_weight(), self.conv.bias)
+        x = self.act(x) if self.quantize_input else x
+        return self.conv._conv_forward(x, self.quantized_weight(), self.conv.bias)
 
 
 def quantize_network(net: ReshadeNet) -> ReshadeNet:
@@ -127,6 +135,11 @@ def set_mode(net: nn.Module, *, enabled: bool, observing: bool, momentum: float 
         q.enabled = enabled
         q.act.observing = observing
         q.act.momentum = momentum
+
+
+def set_input_quantization(net: nn.Module, on: bool) -> None:
+    for q in quant_convs(net):
+        q.quantize_input = on
 
 
 def check_calibrated(net: nn.Module) -> None:

@@ -13,6 +13,7 @@ from reshader_train import cli
 from reshader_train.export import (
     DECODER,
     ENCODER,
+    MEAN_TOLERANCE,
     SINGLE,
     TOLERANCE,
     ExportError,
@@ -57,6 +58,9 @@ def exported(nets, tmp_path_factory):
     info = ExportInfo(size="tiny", validation={"psnr": 30.0})
     for precision, net in nets.items():
         export_precision(net, precision, out, f"reshade-tiny-{precision}", info, True, H, W)
+    export_precision(
+        nets["int8"], "int8", out, "reshade-tiny-int8-wo", info, False, H, W, int8_form="weights"
+    )
     return out
 
 
@@ -83,6 +87,7 @@ def test_onnx_matches_pytorch_within_tolerance(exported, nets, precision):
     got = run_onnxruntime((exported / f"reshade-tiny-{precision}.onnx").read_bytes(), feed)[0]
     assert got.shape == (1, 3, H, W)
     assert np.abs(got - ref).max() <= TOLERANCE[precision]
+    assert np.abs(got - ref).mean() <= MEAN_TOLERANCE[precision]
     # The camera matters: a different camera gives a different image.
     other = run_onnxruntime(
         (exported / f"reshade-tiny-{precision}.onnx").read_bytes(),
@@ -175,6 +180,24 @@ def test_int8_graph_quantises_only_convolution_inputs_and_weights(exported):
             for i in n.input:
                 assert not any(p.op_type in ("QuantizeLinear", "DequantizeLinear")
                                for p in graph.node if i in p.output)  # fmt: skip
+
+
+def test_int8_weights_form_stores_int8_weights_and_float_activations(exported, nets):
+    graph = onnx.load(exported / "reshade-tiny-int8-wo.onnx").graph
+    ops = [n.op_type for n in graph.node]
+    assert ops.count("QuantizeLinear") == 0
+    assert ops.count("DequantizeLinear") == ops.count("Conv") == 13
+    feed = random_feed(3)
+    q = copy.deepcopy(nets["int8"])
+    for m in q.modules():
+        if hasattr(m, "quantize_input"):
+            m.quantize_input = False
+    with torch.no_grad():
+        ref = q(feed["image"], feed["disparity"], feed["camera"]).numpy()
+        full = nets["int8"](feed["image"], feed["disparity"], feed["camera"]).numpy()
+    got = run_onnxruntime((exported / "reshade-tiny-int8-wo.onnx").read_bytes(), feed)[0]
+    assert np.abs(got - ref).max() <= TOLERANCE["fp32"]  # float activations: fp32 arithmetic
+    assert np.abs(got - full).max() > TOLERANCE["fp32"]  # and not the activation-quantised net
 
 
 def test_export_refuses_wrong_network_or_size(nets, tmp_path):

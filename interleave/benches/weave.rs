@@ -1,0 +1,70 @@
+//! Lookup-table build and weave times for a Looking Glass Portrait frame.
+//!
+//! `cargo bench -p interleave` prints one table row per blend mode: a 1536x2048 panel
+//! woven from 48 views at the Portrait quilt tile size (420x560).
+
+use std::time::{Duration, Instant};
+
+use image::{Rgb, RgbImage};
+use interleave::{Blend, Board, Weaver};
+
+const RUNS: usize = 7;
+
+fn main() {
+    let board = Board::builtin("looking-glass-portrait").expect("built-in board");
+    let (vw, vh) = board.view_size();
+    let views: Vec<RgbImage> = (0..board.views())
+        .map(|i| {
+            RgbImage::from_fn(vw, vh, |x, y| {
+                Rgb([(x + i as u32) as u8, (y * 3) as u8, (i * 5) as u8])
+            })
+        })
+        .collect();
+    let (pw, ph) = board.panel_size();
+    println!(
+        "{} panel {pw}x{ph}, {} views of {vw}x{vh}, {RUNS} runs each (median / min / max, ms)",
+        board.name(),
+        board.views()
+    );
+    println!("{:<8} {:>26} {:>26}", "blend", "LUT build", "weave");
+    for blend in [Blend::Nearest, Blend::Linear] {
+        let mut weaver = None;
+        let build = time_runs(|| weaver = Some(Weaver::new(&board, vw, vh, blend)));
+        let weaver = weaver.expect("built at least once");
+        let mut frame = RgbImage::new(pw, ph);
+        let weave = time_runs(|| {
+            weaver
+                .weave_into(&views, &mut frame)
+                .expect("views match the weaver")
+        });
+        println!(
+            "{:<8} {:>26} {:>26}",
+            format!("{blend:?}").to_lowercase(),
+            summary(&build),
+            summary(&weave)
+        );
+        std::hint::black_box(&frame);
+    }
+}
+
+fn time_runs(mut f: impl FnMut()) -> Vec<Duration> {
+    let mut times: Vec<Duration> = (0..RUNS)
+        .map(|_| {
+            let start = Instant::now();
+            f();
+            start.elapsed()
+        })
+        .collect();
+    times.sort();
+    times
+}
+
+fn summary(sorted: &[Duration]) -> String {
+    let ms = |d: Duration| d.as_secs_f64() * 1e3;
+    format!(
+        "{:.1} / {:.1} / {:.1}",
+        ms(sorted[sorted.len() / 2]),
+        ms(sorted[0]),
+        ms(sorted[sorted.len() - 1])
+    )
+}

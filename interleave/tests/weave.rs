@@ -1,0 +1,205 @@
+//! Weaving through the lookup table, quilts and side-by-side output.
+
+use image::{Rgb, RgbImage};
+use interleave::{make_quilt, side_by_side, split_quilt, Blend, Board, WeaveError, Weaver};
+use proptest::prelude::*;
+
+/// View `i` is flat grey level `20·i + 5` in every channel.
+fn flat_views(n: usize, w: u32, h: u32) -> Vec<RgbImage> {
+    (0..n)
+        .map(|i| RgbImage::from_pixel(w, h, Rgb([(20 * i + 5) as u8; 3])))
+        .collect()
+}
+
+/// View `i` encodes its own pixel position: R = x, G = y, B = view index.
+fn coordinate_views(n: usize, w: u32, h: u32) -> Vec<RgbImage> {
+    (0..n)
+        .map(|i| RgbImage::from_fn(w, h, |x, y| Rgb([x as u8, y as u8, i as u8])))
+        .collect()
+}
+
+fn small_lg_board() -> Board {
+    let text = r#"
+        name = "small"
+        width = 60
+        height = 40
+        views = 12
+        quilt_cols = 4
+        quilt_rows = 3
+        view_cone_deg = 40.0
+        [looking_glass]
+        pitch = 52.0
+        slope = -7.0
+        center = 0.5
+        inv_view = true
+        dpi = 30.0
+    "#;
+    Board::from_toml_str(text, "small.toml").unwrap()
+}
+
+#[test]
+fn nearest_weave_picks_each_subpixel_from_its_view() {
+    let board = small_lg_board();
+    let m = board.mapping();
+    let views = flat_views(12, 60, 40);
+    let panel = Weaver::new(&board, 60, 40, Blend::Nearest)
+        .weave(&views)
+        .unwrap();
+    assert_eq!(panel.dimensions(), (60, 40));
+    let mut seen = [false; 12];
+    for (x, y, px) in panel.enumerate_pixels() {
+        for c in 0..3 {
+            let v = m.view_index(x, y, c);
+            seen[v] = true;
+            assert_eq!(px[c], (20 * v + 5) as u8, "({x},{y},{c})");
+        }
+    }
+    assert!(
+        seen.iter().all(|&s| s),
+        "a 60x40 panel shows every one of 12 views"
+    );
+}
+
+#[test]
+fn small_views_are_sampled_at_the_normalised_position() {
+    let board = Board::builtin("generic-8view").unwrap();
+    let views = coordinate_views(8, 96, 54);
+    let weaver = Weaver::new(&board, 96, 54, Blend::Nearest);
+    let panel = weaver.weave(&views).unwrap();
+    // Panel pixel (1000, 500) sits at (1000.5/1920, 500.5/1080) = (0.5211, 0.4634) of the
+    // view: column floor(0.5211·96) = 50, row floor(0.4634·54) = 25.
+    // Its red subpixel shows view (3·1000 + 0 − 500) mod 8 = 4, whose R channel is x = 50.
+    assert_eq!(panel.get_pixel(1000, 500)[0], 50);
+    // The green subpixel shows view 5; its G channel is the sampled row, 25.
+    assert_eq!(panel.get_pixel(1000, 500)[1], 25);
+    // Blue: view 6, whose B channel is its own index.
+    assert_eq!(panel.get_pixel(1000, 500)[2], 6);
+    assert_eq!(weaver.view_at(1000, 500, 2), 6);
+    // The last panel pixel samples the last view pixel.
+    let last = panel.get_pixel(1919, 1079);
+    assert_eq!((last[0], last[1]), (95, 53));
+}
+
+#[test]
+fn side_by_side_board_weaves_as_a_stereo_pair() {
+    let board = Board::builtin("sbs-2view").unwrap();
+    let (vw, vh) = board.view_size();
+    let views: Vec<RgbImage> = (0..2u8)
+        .map(|i| RgbImage::from_fn(vw, vh, |x, y| Rgb([(x % 251) as u8, (y % 241) as u8, i])))
+        .collect();
+    for blend in [Blend::Nearest, Blend::Linear] {
+        let panel = Weaver::new(&board, vw, vh, blend).weave(&views).unwrap();
+        assert_eq!(panel, side_by_side(&views[0], &views[1]), "{blend:?}");
+    }
+}
+
+#[test]
+fn linear_blend_mixes_the_two_neighbouring_views() {
+    let board = small_lg_board();
+    let m = board.mapping();
+    let views = flat_views(12, 30, 20);
+    let panel = Weaver::new(&board, 30, 20, Blend::Linear)
+        .weave(&views)
+        .unwrap();
+    let mut mixed = 0;
+    for (x, y, px) in panel.enumerate_pixels() {
+        for c in 0..3 {
+            // View i is centred at (i + 0.5)/12; the level is linear in the view index,
+            // so the blended level is 20·s + 5 with s = 12·t − 0.5 clamped to [0, 11].
+            let s = (m.cone_position(x, y, c) * 12.0 - 0.5).clamp(0.0, 11.0);
+            let want = 20.0 * s + 5.0;
+            assert!(
+                (f64::from(px[c]) - want).abs() <= 1.0,
+                "({x},{y},{c}): {} vs {want}",
+                px[c]
+            );
+            if s.fract() > 0.2 && s.fract() < 0.8 {
+                mixed += 1;
+            }
+        }
+    }
+    assert!(
+        mixed > 1000,
+        "blending should produce in-between levels ({mixed})"
+    );
+}
+
+#[test]
+fn weave_rejects_wrong_views() {
+    let board = small_lg_board();
+    let weaver = Weaver::new(&board, 30, 20, Blend::Nearest);
+    assert_eq!(
+        weaver.weave(&flat_views(11, 30, 20)),
+        Err(WeaveError::ViewCount {
+            expected: 12,
+            got: 11
+        })
+    );
+    let mut views = flat_views(12, 30, 20);
+    views[7] = RgbImage::new(30, 21);
+    let err = weaver.weave(&views).unwrap_err();
+    assert_eq!(err.to_string(), "view 7 is 30x21, expected 30x20");
+    let empty = Weaver::new(&board, 0, 20, Blend::Nearest);
+    assert!(matches!(
+        empty.weave(&flat_views(12, 0, 20)),
+        Err(WeaveError::EmptyView { .. })
+    ));
+}
+
+#[test]
+fn weave_into_reuses_the_frame() {
+    let board = small_lg_board();
+    let weaver = Weaver::new(&board, 30, 20, Blend::Nearest);
+    let views = coordinate_views(12, 30, 20);
+    let mut frame = RgbImage::new(60, 40);
+    weaver.weave_into(&views, &mut frame).unwrap();
+    assert_eq!(frame, weaver.weave(&views).unwrap());
+}
+
+#[test]
+fn blend_parses_from_cli_words() {
+    assert_eq!("nearest".parse::<Blend>(), Ok(Blend::Nearest));
+    assert_eq!("linear".parse::<Blend>(), Ok(Blend::Linear));
+    assert!("cubic"
+        .parse::<Blend>()
+        .unwrap_err()
+        .to_string()
+        .contains("nearest"));
+}
+
+#[test]
+fn portrait_quilt_has_the_looking_glass_layout() {
+    let board = Board::builtin("looking-glass-portrait").unwrap();
+    let (cols, rows) = board.quilt_grid();
+    let (vw, vh) = (8, 6);
+    let quilt = make_quilt(&flat_views(48, vw, vh), cols, rows).unwrap();
+    assert_eq!(quilt.dimensions(), (64, 36));
+    // View 0 bottom-left, view 7 bottom-right, view 8 starts the next row up, view 47 top-right.
+    assert_eq!(quilt.get_pixel(0, 35)[0], 5);
+    assert_eq!(quilt.get_pixel(63, 35)[0], 20 * 7 + 5);
+    assert_eq!(quilt.get_pixel(0, 29)[0], 20 * 8 + 5);
+    assert_eq!(quilt.get_pixel(63, 0)[0], (20 * 47 + 5) as u8);
+    assert_eq!(board.quilt_file_name(), "quilt_qs8x6a0.75.png");
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(32))]
+
+    #[test]
+    fn quilt_round_trip(
+        cols in 1u32..6, rows in 1u32..6, w in 1u32..9, h in 1u32..9,
+        seed in any::<u32>(), spare in 0u32..6,
+    ) {
+        let n = (cols * rows).saturating_sub(spare.min(cols * rows - 1)) as usize;
+        let views: Vec<RgbImage> = (0..n)
+            .map(|i| RgbImage::from_fn(w, h, |x, y| {
+                let v = seed ^ (i as u32 * 7919 + x * 31 + y * 17);
+                Rgb([v as u8, (v >> 8) as u8, (v >> 16) as u8])
+            }))
+            .collect();
+        let quilt = make_quilt(&views, cols, rows).unwrap();
+        prop_assert_eq!(quilt.dimensions(), (w * cols, h * rows));
+        let back = split_quilt(&quilt, cols, rows, n).unwrap();
+        prop_assert_eq!(back, views);
+    }
+}

@@ -33,7 +33,7 @@ from .model import NetConfig, ReshadeNet, count_parameters, net_config
 
 CHECKPOINT = "checkpoint.pt"
 LOG_FIELDS = ("step", "lr", "loss", "l1", "vgg", "style", "examples", "steps_per_s", "elapsed_s")
-VAL_FIELDS = ("step", "psnr_input", "psnr_ours", "gain_db")
+VAL_FIELDS = ("step", "examples", "psnr_input", "psnr_ours", "gain_db")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -70,7 +70,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--rescan",
         action="store_true",
-        help="re-list the dataset every epoch and train on examples rendered meanwhile",
+        help="re-list the datasets (training: every epoch; validation: until it has "
+        "--val-examples) to use examples rendered meanwhile",
     )
     p.add_argument("--no-progress", action="store_true", help="plain log lines instead of tqdm")
 
@@ -160,6 +161,7 @@ def validate(net: ReshadeNet, val: ReshadeDataset, count: int, device: torch.dev
         pout.append(masked_psnr(ours, s["target"], s["mask"]))
     net.train()
     return {
+        "examples": len(pin),
         "psnr_input": float(np.mean(pin)),
         "psnr_ours": float(np.mean(pout)),
         "gain_db": float(np.mean(np.subtract(pout, pin))),
@@ -346,6 +348,8 @@ def train(args: argparse.Namespace) -> ReshadeNet:
             if d.main and (step % args.checkpoint_every == 0 or step == args.steps):
                 save_checkpoint(run_dir, net, opt, step, meta)
             if val is not None and (step % args.val_every == 0 or step == args.steps):
+                if args.rescan and len(val) < args.val_examples:
+                    val = ReshadeDataset(args.val_data, crop=None, augment=None)
                 v = validate(net, val, args.val_examples, d.device)
                 append_csv(run_dir / "val.csv", VAL_FIELDS, {**v, "step": step})
                 if progress is not None:

@@ -296,3 +296,46 @@ def test_qnnpack_emulation_of_tiny_conv(tmp_path):
     expected = _expected_int8(x[0].astype(np.float64), w_u8, bias, q)
     assert y8.dtype == np.uint8 and (yq.scale, yq.zero_point) == (pytest.approx(q[4]), q[5])
     assert np.abs((y8.astype(np.int64) - yq.zero_point) * yq.scale - expected).max() <= q[4] * 1.001
+
+
+@needs_source
+def test_convert_command_writes_models_manifests_and_licence(tmp_path):
+    import hashlib
+    import json
+
+    from reshader_train.cli import main
+
+    source = tmp_path / "src"
+    for sub in ("model", "input", "output"):
+        (source / sub).mkdir(parents=True)
+    for rel in ("model/tiefenrausch.pb", "model/tiefenrausch_init.pb", "LICENSE"):
+        (source / rel).symlink_to(SOURCE.resolve() / rel)
+    (source / "input/columns.jpg").symlink_to(SOURCE.resolve() / "input/columns.jpg")
+    (source / "output/columns.npy").symlink_to(SOURCE.resolve() / "output/columns.npy")
+    out = tmp_path / "depth"
+    assert main(["convert-depth", "--source", str(source), "--out", str(out)]) == 0
+    assert (out / "LICENSE").read_bytes() == (SOURCE / "LICENSE").read_bytes()
+    for precision in ("int8", "fp32"):
+        manifest = json.loads((out / f"tiefenrausch-{precision}.json").read_text())
+        onnx_bytes = (out / manifest["file"]).read_bytes()
+        assert manifest["format"] == "reshader-manifest/1"
+        assert manifest["name"] == f"tiefenrausch-{precision}" and manifest["task"] == "depth"
+        assert manifest["precision"] == precision
+        assert manifest["sha256"] == hashlib.sha256(onnx_bytes).hexdigest()
+        assert manifest["depth"]["input_size"] == {
+            "policy": "longest-side",
+            "size": 384,
+            "multiple": 32,
+        }
+        assert manifest["depth"]["output_kind"] == "log-disparity"
+        assert manifest["image"]["mean"] is None and manifest["size_multiple"] == 32
+        (photo,) = manifest["validation"]["photos"]
+        assert photo["photo"] == "columns.jpg" and photo["pearson"] > 0.999
+    assert not list(out.glob(".*")), "temporary files left behind"
+
+
+def test_convert_command_reports_missing_source(tmp_path, capsys):
+    from reshader_train.cli import main
+
+    assert main(["convert-depth", "--source", str(tmp_path), "--out", str(tmp_path / "o")]) == 1
+    assert "LICENSE" in capsys.readouterr().err

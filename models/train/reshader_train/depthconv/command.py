@@ -16,11 +16,19 @@ import sys
 import tempfile
 from pathlib import Path
 
+import numpy as np
+
 from .caffe2_model import Caffe2Model, Caffe2ModelError, load_caffe2_model
 from .onnx_export import INPUT_NAME, OUTPUT_NAME, build_onnx
 from .preprocess import LONG_SIDE, MULTIPLE
 from .protobuf import ProtobufError
-from .verify import emulation_agreement, onnxruntime_errors, reference_pairs
+from .verify import (
+    disparity_errors,
+    emulation_agreement,
+    identical_levels,
+    onnxruntime_outputs,
+    reference_pairs,
+)
 
 NAME = "tiefenrausch"
 VERSION = "1.0.0"
@@ -128,7 +136,7 @@ def _manifest(
         "architecture": {
             "size": "tiefenrausch (AS + quant)",
             "graph_form": form,
-            "ops": model.op_counts(),
+            "caffe2_ops": model.op_counts(),
             "parameters": model.parameter_count(),
         },
         "training": None,
@@ -136,7 +144,7 @@ def _manifest(
             "engine": "onnxruntime CPU",
             "metric": "disparity = exp(output) vs the original Caffe2 output (output/*.npy): "
             "relative error |d - ref| / ref, and Pearson correlation",
-            "photos": [e.as_dict() for e in errors],
+            "photos": errors,
         },
         "licence": "MIT (Copyright (c) 2020 Facebook Research); LICENSE beside this file",
         "source": "facebookresearch/one_shot_3d_photography, model/tiefenrausch.pb and "
@@ -145,6 +153,29 @@ def _manifest(
         "source_sha256": sources,
         "conversion_command": COMMAND,
     }
+
+
+def _measure(
+    path: Path, pairs: list, out_scale: float, min_pearson: float
+) -> tuple[list[np.ndarray], list[dict]]:
+    """onnxruntime outputs on the reference photos and their errors; refuses poor models."""
+    outputs = onnxruntime_outputs(path, pairs)
+    errors = []
+    for (photo, ref_path), y in zip(pairs, outputs, strict=True):
+        ref = np.load(ref_path)
+        e = disparity_errors(photo.name, y, ref).as_dict()
+        e["identical_output_levels"] = identical_levels(y, ref, out_scale)
+        print(
+            f"{path.name} {photo.name}: max rel {e['max_rel']:.4f}, mean rel "
+            f"{e['mean_rel']:.5f}, pearson {e['pearson']:.6f}, identical levels "
+            f"{e['identical_output_levels']:.3f}"
+        )
+        if not e["pearson"] >= min_pearson:
+            raise Caffe2ModelError(
+                f"{path.name} on {photo.name}: pearson {e['pearson']:.6f} < {min_pearson}"
+            )
+        errors.append(e)
+    return outputs, errors
 
 
 def convert(
@@ -159,23 +190,21 @@ def convert(
     pairs = reference_pairs(source)
     out.mkdir(parents=True, exist_ok=True)
     sources = {p.name: _sha256(p) for p in (predict, init)}
+    out_q = model.quant[model.ops[-1].inputs[0]]
     with tempfile.TemporaryDirectory(dir=out, prefix=".convert-depth.") as tmp:
-        staged = []
+        staged, outputs = [], {}
         for precision, form in (("int8", int8_form), ("fp32", "fp32")):
             path = Path(tmp) / f"{NAME}-{precision}.onnx"
             path.write_bytes(build_onnx(model, form).SerializeToString())
             path.chmod(0o644)
-            errors = onnxruntime_errors(path, pairs)
-            for e in errors:
-                print(
-                    f"{path.name} {e.photo}: max rel {e.max_rel:.4f}, mean rel "
-                    f"{e.mean_rel:.5f}, pearson {e.pearson:.6f}"
-                )
-                if not e.pearson >= min_pearson:
-                    raise Caffe2ModelError(
-                        f"{path.name} on {e.photo}: pearson {e.pearson:.6f} < {min_pearson}"
-                    )
+            outputs[precision], errors = _measure(path, pairs, out_q.scale, min_pearson)
             staged.append((path, _manifest(model, precision, form, path, errors, sources)))
+        int8_vs_fp32 = [
+            disparity_errors(photo.name, yi, np.exp(yf)).as_dict()
+            for (photo, _), yi, yf in zip(pairs, outputs["int8"], outputs["fp32"], strict=True)
+        ]
+        for _, manifest in staged:
+            manifest["validation"]["int8_vs_fp32"] = int8_vs_fp32
         if emulate:
             agreement = emulation_agreement(model, pairs)
             for a in agreement:

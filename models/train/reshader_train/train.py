@@ -126,6 +126,24 @@ def append_csv(path: Path, fields: tuple[str, ...], row: dict) -> None:
         w.writerow({k: row[k] for k in fields})
 
 
+def truncate_csv(path: Path, step: int) -> None:
+    """Drop rows logged after `step`: a resumed run logs those steps again."""
+    if not path.exists():
+        return
+    with open(path, newline="") as f:
+        reader = csv.DictReader(f)
+        fields = reader.fieldnames or []
+        rows = [r for r in reader if int(r["step"]) <= step]
+
+    def write(tmp: Path) -> None:
+        with open(tmp, "w", newline="") as f:
+            w = csv.DictWriter(f, fieldnames=fields)
+            w.writeheader()
+            w.writerows(rows)
+
+    atomic_write(path, write)
+
+
 def load_resume(run_dir: Path, cfg: NetConfig, device: torch.device) -> dict | None:
     path = run_dir / CHECKPOINT
     if not path.exists():
@@ -265,6 +283,8 @@ def train(args: argparse.Namespace) -> ReshadeNet:
         "train_examples": len(dataset),
     }
     if d.main:
+        for name in ("log.csv", "val.csv"):
+            truncate_csv(run_dir / name, step)
         config = {
             **meta,
             "command": " ".join(shlex.quote(a) for a in sys.argv),

@@ -87,6 +87,8 @@ def test_train_writes_run_dir_and_resumes(data, tmp_path):
     trained = {k: v.clone() for k, v in net.state_dict().items()}
     assert all(torch.equal(trained[k], v) for k, v in ckpt["model"].items())
 
+    with open(run / "log.csv", "a") as f:  # as if killed after step 4, before a checkpoint
+        f.write("5,0.0001,1,1,1,1,4,1,1\n")
     net2 = train(train_args(data, run, 6))
     assert torch.load(run / "checkpoint.pt", weights_only=False)["step"] == 6
     assert [int(r["step"]) for r in read_csv(run / "log.csv")] == [1, 2, 3, 4, 5, 6]

@@ -399,3 +399,7 @@ def test_sheet_shows_every_example(mi, tmp_path):
     sheet = np.array(mi.Bitmap(png))
     assert sheet.shape == (2 * (12 + 2), 4 * 16 + 3 * 2, 3)
     assert math.isclose(float(sheet[-1, -1].mean()), 255)
+    small = str(tmp_path / "small.png")
+    assert run_cli("sheet", out, "--out", small, "--downscale", "2") == 0
+    assert np.array(mi.Bitmap(small)).shape == (14, 35, 3)
+    assert run_cli("sheet", str(tmp_path / "missing"), "--out", small) == 2

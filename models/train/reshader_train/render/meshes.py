@@ -4,18 +4,20 @@ import math
 
 import numpy as np
 
-from .textures import _value_noise
+from .textures import value_noise
 
 
-def _grid_faces(nu: int, nv: int, wrap_u: bool) -> np.ndarray:
-    """Two triangles per cell of an (nu+1) x (nv+1) vertex grid (row-major in v)."""
+def _grid_faces(nu: int, nv: int) -> np.ndarray:
+    """Two triangles per cell of an (nu+1) x (nv+1) vertex grid (row-major in v).
+
+    Seam vertices are duplicated (u = 0 and u = 1), so no wrap-around faces are needed.
+    """
     faces = []
     for j in range(nv):
         for i in range(nu):
             a = j * (nu + 1) + i
             b, c, d = a + 1, a + nu + 1, a + nu + 2
             faces += [(a, c, b), (b, c, d)]
-    del wrap_u  # seam vertices are duplicated, so the grid needs no wrap-around faces
     return np.array(faces, dtype=np.uint32)
 
 
@@ -24,7 +26,7 @@ def _surface(fn, nu: int, nv: int):
     v, u = np.mgrid[0 : nv + 1, 0 : nu + 1] / np.array([nv, nu])[:, None, None]
     verts = fn(u, v).reshape(-1, 3)
     uv = np.stack([u, v], axis=-1).reshape(-1, 2)
-    return verts, _grid_faces(nu, nv, True), uv
+    return verts, _grid_faces(nu, nv), uv
 
 
 def torus(major: float, minor: float, nu: int = 48, nv: int = 24):
@@ -38,7 +40,7 @@ def torus(major: float, minor: float, nu: int = 48, nv: int = 24):
 
 def blob(radius: float, amplitude: float, seed: int, nu: int = 48, nv: int = 24):
     """A sphere displaced by smooth noise (periodic in longitude, pinned at the poles)."""
-    noise = _value_noise(np.random.default_rng(seed), 64, 3, 3)
+    noise = value_noise(np.random.default_rng(seed), 64, 3, 3)
 
     def fn(u, v):
         theta, phi = math.pi * v, 2 * math.pi * u

@@ -6,6 +6,7 @@ percentile luminance maps to 0.9, then sRGB-encoded.
 """
 
 import os
+import sys
 
 import numpy as np
 
@@ -18,6 +19,9 @@ def add_arguments(parser) -> None:
     parser.add_argument("--count", type=int, default=8, help="examples to show (default 8)")
     parser.add_argument("--start", type=int, default=0, help="skip this many examples first")
     parser.add_argument("--novel", action="store_true", help="add the novel view as a column")
+    parser.add_argument(
+        "--downscale", type=int, default=1, help="shrink by this integer factor (box filter)"
+    )
 
 
 def _srgb(x: np.ndarray) -> np.ndarray:
@@ -78,11 +82,25 @@ def make_sheet(mi, dataset: str, count: int, start: int = 0, with_novel: bool = 
     return np.concatenate(padded, axis=0), ids
 
 
+def downscale(image: np.ndarray, k: int) -> np.ndarray:
+    """Box-filter shrink by an integer factor (edges that do not fill a box are cut)."""
+    h, w = image.shape[0] // k * k, image.shape[1] // k * k
+    return image[:h, :w].reshape(h // k, k, w // k, k, -1).mean(axis=(1, 3))
+
+
 def run(args) -> int:
     from .mitsuba_env import load_mitsuba
 
+    if args.count < 1 or args.downscale < 1:
+        print("reshader-train sheet: --count and --downscale must be >= 1", file=sys.stderr)
+        return 2
     mi = load_mitsuba()
-    sheet, ids = make_sheet(mi, args.dataset, args.count, args.start, args.novel)
+    try:
+        sheet, ids = make_sheet(mi, args.dataset, args.count, args.start, args.novel)
+    except (FileNotFoundError, ValueError) as err:
+        print(f"reshader-train sheet: {err}", file=sys.stderr)
+        return 2
+    sheet = downscale(sheet, args.downscale)
     image = np.round(sheet * 255).astype(np.uint8)
     tmp = f"{args.out}.tmp.png"
     mi.Bitmap(image, mi.Bitmap.PixelFormat.RGB).write(tmp)

@@ -13,7 +13,7 @@ KINDS = ("noise", "wood", "tiles", "stripes")
 TEXTURE_SIZE = 128
 
 
-def _value_noise(rng: np.random.Generator, size: int, base: int, octaves: int) -> np.ndarray:
+def value_noise(rng: np.random.Generator, size: int, base: int, octaves: int) -> np.ndarray:
     """Tileable fractal value noise in [0, 1]."""
     out = np.zeros((size, size))
     weight_sum = 0.0
@@ -40,9 +40,9 @@ def _pattern(p: dict, size: int) -> np.ndarray:
     y, x = (np.mgrid[0:size, 0:size] + 0.5) / size
     kind = p["kind"]
     if kind == "noise":
-        return _value_noise(rng, size, p["scale"], 4)
+        return value_noise(rng, size, p["scale"], 4)
     if kind == "wood":
-        turb = _value_noise(rng, size, 4, 3)
+        turb = value_noise(rng, size, 4, 3)
         # Rings around a centre outside the tile, wrapped so the tile repeats seamlessly.
         cx, cy = p["centre"]
         r = np.hypot(np.sin(math.pi * (x - cx)), np.sin(math.pi * (y - cy)))

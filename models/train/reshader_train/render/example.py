@@ -18,9 +18,10 @@ import numpy as np
 
 from .cameras import Camera, look_at, sample_shell
 
-# All three images are scaled so that the input's median luminance is this: the training
-# tone mapping (exposure x3..10, then clip) expects HDR values of roughly this level.
-TARGET_MEDIAN = 0.06
+# All three images are scaled so that the input's median luminance is this. The training
+# tone mapping (exposure x3..10, clip, gamma 2.2..5) then puts the median at 0.06..0.2
+# before the gamma and clips only the brightest few percent (highlights, lights).
+TARGET_MEDIAN = 0.02
 # A novel camera up to 0.3 away must stay in free space, so the input camera keeps this
 # clearance from all geometry.
 CLEARANCE = 0.35
@@ -226,7 +227,12 @@ def render_example(mi, source, out_dir: str, seed: int, index: int, settings: Re
         "novel_camera": novel_cam.meta(),
         "novel_offset": [float(v) for v in offset],
         "invalid_fraction": float((views["invalid"] > 0).mean()),
-        "scene": {**params, "camera": cam, "brightness_scale": scale},
+        "scene": {
+            **params,
+            "camera": cam,
+            "brightness_scale": scale,
+            "target_median": TARGET_MEDIAN,
+        },
         "render_seconds": timings,
     }
     write_example(mi, out_dir, ex_id, views, meta)

@@ -385,6 +385,11 @@ def test_bad_inputs_give_clear_errors(mi, tmp_path, capsys):
     bad.write_text("<scene><shape")
     assert run_cli("render", "--out", str(tmp_path), "--scenes", str(bad), "--count", "1") == 2
     assert "bad.xml" in capsys.readouterr().err
+    unknown = tmp_path / "unknown.xml"
+    unknown.write_text('<scene version="3.0.0"><shape type="teapot-of-doom"/></scene>')
+    assert run_cli("render", "--out", str(tmp_path), "--scenes", str(unknown), "--count", "1") == 2
+    err = capsys.readouterr().err
+    assert "unknown.xml" in err and "teapot-of-doom" in err
     assert run_cli("render", "--out", str(tmp_path), "--count", "1", "--size", "big") == 2
     assert "--size" in capsys.readouterr().err
     assert run_cli("render", "--out", str(tmp_path), "--count", "1", "--shard", "2/2") == 2

@@ -105,16 +105,17 @@ def release_caches() -> None:
 def run(args) -> int:
     from tqdm import tqdm
 
-    from .mitsuba_env import load_mitsuba
+    from .mitsuba_env import LlvmNotFound, load_mitsuba
 
     try:
         settings = _settings(args)
         shard, shards = _shard(args.shard)
         source = _source(args)
-    except (ValueError, FileNotFoundError) as err:
+        mi = load_mitsuba(args.threads)
+        source.prepare(mi)
+    except (ValueError, FileNotFoundError, LlvmNotFound) as err:
         print(f"reshader-train render: {err}", file=sys.stderr)
         return 2
-    mi = load_mitsuba(args.threads)
     os.makedirs(args.out, exist_ok=True)
     indices = range(shard, args.count, shards)
     todo = [i for i in indices if not is_complete(args.out, example_id(args.seed, i))]

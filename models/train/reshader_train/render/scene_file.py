@@ -138,9 +138,14 @@ class SceneFile:
             root.append(el)
         return ET.tostring(root, encoding="unicode"), materials
 
-    def make(self, mi, rng, width: int, height: int, randomize: bool, n_orbs: int):
+    def load_base(self, mi) -> None:
         if self.base is None:
             self.base = self._load(mi)
+            if not self.base.shapes():
+                raise ValueError(f"{self.path}: the scene has no shapes to look at")
+
+    def make(self, mi, rng, width: int, height: int, randomize: bool, n_orbs: int):
+        self.load_base(mi)
         params: dict = {"kind": "file", "file": self.path, "max_depth": self.max_depth()}
         up = self.up(self.base)
         orbs = sample_free_orbs(rng, self.base, n_orbs)

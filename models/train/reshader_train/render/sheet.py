@@ -89,15 +89,15 @@ def downscale(image: np.ndarray, k: int) -> np.ndarray:
 
 
 def run(args) -> int:
-    from .mitsuba_env import load_mitsuba
+    from .mitsuba_env import LlvmNotFound, load_mitsuba
 
     if args.count < 1 or args.downscale < 1:
         print("reshader-train sheet: --count and --downscale must be >= 1", file=sys.stderr)
         return 2
-    mi = load_mitsuba()
     try:
+        mi = load_mitsuba()
         sheet, ids = make_sheet(mi, args.dataset, args.count, args.start, args.novel)
-    except (FileNotFoundError, ValueError) as err:
+    except (FileNotFoundError, ValueError, LlvmNotFound) as err:
         print(f"reshader-train sheet: {err}", file=sys.stderr)
         return 2
     sheet = downscale(sheet, args.downscale)

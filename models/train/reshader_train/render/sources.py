@@ -7,6 +7,9 @@ from .example import choose_procedural_camera
 class ProceduralSource:
     name = "procedural"
 
+    def prepare(self, mi) -> None:
+        """Nothing to load up front."""
+
     def make(self, mi, rng, width: int, height: int):
         """(scene parameters, Mitsuba scene, camera parameters) for one example."""
         for _ in range(10):
@@ -34,6 +37,10 @@ class SceneFileSource:
         self.file = scene_file.SceneFile(path)
         self.randomize_materials = randomize_materials
         self.orbs = orbs
+
+    def prepare(self, mi) -> None:
+        """Load the file once up front, so that a broken scene fails before any example."""
+        self.file.load_base(mi)
 
     def make(self, mi, rng, width: int, height: int):
         return self.file.make(mi, rng, width, height, self.randomize_materials, self.orbs)

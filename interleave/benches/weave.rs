@@ -1,6 +1,6 @@
 //! Lookup-table build and weave times for a Looking Glass Portrait frame.
 //!
-//! `cargo bench -p interleave` prints one table row per blend mode: a 1536x2048 panel
+//! `cargo bench -p interleave` prints one table row per blend mode and thread count: a 1536x2048 panel
 //! woven from 48 views at the Portrait quilt tile size (420x560).
 
 use std::time::{Duration, Instant};
@@ -26,10 +26,20 @@ fn main() {
         board.name(),
         board.views()
     );
-    println!("{:<8} {:>26} {:>26}", "blend", "LUT build", "weave");
-    for blend in [Blend::Nearest, Blend::Linear] {
+    println!(
+        "{:<8} {:>7} {:>26} {:>26}",
+        "blend", "threads", "LUT build", "weave"
+    );
+    for (blend, threads) in [
+        (Blend::Nearest, 1),
+        (Blend::Nearest, 2),
+        (Blend::Linear, 1),
+        (Blend::Linear, 2),
+    ] {
+        let mapping = board.mapping();
         let mut weaver = None;
-        let build = time_runs(|| weaver = Some(Weaver::new(&board, vw, vh, blend)));
+        let build =
+            time_runs(|| weaver = Some(Weaver::from_mapping(&mapping, vw, vh, blend, threads)));
         let weaver = weaver.expect("built at least once");
         let mut frame = RgbImage::new(pw, ph);
         let weave = time_runs(|| {
@@ -38,8 +48,9 @@ fn main() {
                 .expect("views match the weaver")
         });
         println!(
-            "{:<8} {:>26} {:>26}",
+            "{:<8} {:>7} {:>26} {:>26}",
             format!("{blend:?}").to_lowercase(),
+            threads,
             summary(&build),
             summary(&weave)
         );

@@ -77,7 +77,7 @@ impl LensPhase {
 
     /// Position `t` in the view cone, in `[0, 1]`, for a phase.
     pub fn cone_position(&self, phase: f64) -> f64 {
-        let f = phase - phase.floor();
+        let f = phase - floor(phase);
         if self.invert {
             1.0 - f
         } else {
@@ -88,7 +88,19 @@ impl LensPhase {
 
 /// Nearest view for a cone position `t` in `[0, 1]` among `views` views.
 pub fn nearest_view(t: f64, views: usize) -> usize {
-    ((t * views as f64).floor() as usize).min(views - 1)
+    // `as` truncates, which is floor for the non-negative t·N.
+    ((t * views as f64) as usize).min(views - 1)
+}
+
+/// `f64::floor` without the libm call that baseline x86-64 (no SSE4.1) compiles it to;
+/// the lookup-table build calls it once per subpixel. Exact for |x| < 2^52.
+fn floor(x: f64) -> f64 {
+    let t = x as i64 as f64;
+    if t > x {
+        t - 1.0
+    } else {
+        t
+    }
 }
 
 /// The two views to blend for cone position `t`, and the weight of the second.
@@ -105,8 +117,8 @@ pub fn blend_views(t: f64, views: usize) -> (usize, f64) {
     if s >= last as f64 {
         return (last, 0.0);
     }
-    let i = s.floor();
-    (i as usize, s - i)
+    let i = s as usize;
+    (i, s - i as f64)
 }
 
 #[derive(Debug, Clone, PartialEq)]
@@ -187,6 +199,32 @@ impl Mapping {
             // Cone positions at the two view centres, so blending never mixes the eyes.
             Kind::SideBySide if x < self.left_width() => 0.25,
             Kind::SideBySide => 0.75,
+        }
+    }
+
+    /// Cone positions of every subpixel of row `y`, 3 per pixel in panel order.
+    ///
+    /// Same values as [`Mapping::cone_position`], without its per-subpixel dispatch.
+    pub fn cone_positions_row(&self, y: u32, out: &mut [f64]) {
+        match &self.kind {
+            Kind::Lenticular { layout, phase } => {
+                let row = phase.per_row * f64::from(y);
+                let pos = [0, 1, 2].map(|c| layout.position(c) as f64);
+                for (x, px) in out.chunks_exact_mut(3).enumerate() {
+                    let k0 = 3.0 * x as f64;
+                    for (t, p) in px.iter_mut().zip(pos) {
+                        // Same operation order as `LensPhase::phase`, so the values agree
+                        // bit for bit with `cone_position`.
+                        let value = phase.per_subpixel * (k0 + p) + row + phase.offset;
+                        *t = phase.cone_position(value);
+                    }
+                }
+            }
+            Kind::SideBySide => {
+                for (x, px) in out.chunks_exact_mut(3).enumerate() {
+                    px.fill(self.cone_position(x as u32, y, 0));
+                }
+            }
         }
     }
 

@@ -7,6 +7,73 @@ use image::RgbImage;
 use crate::board::Board;
 use crate::mapping::{blend_views, nearest_view, Mapping};
 
+/// Threads used by [`Weaver::new`]: the machine's cores, at most 8 (the gather is
+/// memory-bound well before that).
+fn default_threads() -> usize {
+    std::thread::available_parallelism().map_or(1, |n| n.get().min(8))
+}
+
+fn build_table(mapping: &Mapping, blend: Blend, threads: usize) -> Table {
+    let (w, h) = mapping.panel_size();
+    let row_len = w as usize * 3;
+    let len = row_len * h as usize;
+    let views = mapping.views();
+    match blend {
+        Blend::Nearest => {
+            let mut table = vec![0u8; len];
+            for_row_chunks(&mut table, row_len, threads, |first, chunk| {
+                fill_rows(mapping, first, chunk, |t| nearest_view(t, views) as u8)
+            });
+            Table::Nearest(table)
+        }
+        Blend::Linear => {
+            let mut table = vec![[0u8; 3]; len];
+            for_row_chunks(&mut table, row_len, threads, |first, chunk| {
+                fill_rows(mapping, first, chunk, |t| {
+                    let (v, w) = blend_views(t, views);
+                    let second = if w > 0.0 { v + 1 } else { v };
+                    // Adding 0.5 and truncating rounds without a libm call.
+                    [v as u8, second as u8, (w * 255.0 + 0.5) as u8]
+                })
+            });
+            Table::Linear(table)
+        }
+    }
+}
+
+/// Fills table rows `first_row..` with `entry(cone position)` for each subpixel.
+fn fill_rows<T>(mapping: &Mapping, first_row: usize, rows: &mut [T], entry: impl Fn(f64) -> T) {
+    let row_len = mapping.panel_size().0 as usize * 3;
+    let mut t = vec![0.0; row_len];
+    for (i, row) in rows.chunks_exact_mut(row_len).enumerate() {
+        mapping.cone_positions_row((first_row + i) as u32, &mut t);
+        for (slot, &ti) in row.iter_mut().zip(&t) {
+            *slot = entry(ti);
+        }
+    }
+}
+
+/// Runs `work(first_row, rows)` over contiguous bands of rows, one band per thread.
+fn for_row_chunks<T: Send>(
+    data: &mut [T],
+    row_len: usize,
+    threads: usize,
+    work: impl Fn(usize, &mut [T]) + Sync,
+) {
+    let rows = data.len() / row_len.max(1);
+    if threads <= 1 || rows < 2 {
+        work(0, data);
+        return;
+    }
+    let band = rows.div_ceil(threads);
+    std::thread::scope(|scope| {
+        for (i, chunk) in data.chunks_mut(band * row_len).enumerate() {
+            let work = &work;
+            scope.spawn(move || work(i * band, chunk));
+        }
+    });
+}
+
 /// Errors from weaving and quilt handling.
 #[derive(Debug, thiserror::Error, PartialEq, Eq)]
 pub enum WeaveError {
@@ -59,6 +126,16 @@ impl FromStr for Blend {
     }
 }
 
+/// Per-subpixel lookup table, row-major, 3 entries per panel pixel.
+#[derive(Debug, Clone)]
+enum Table {
+    /// The view of each subpixel.
+    Nearest(Vec<u8>),
+    /// Two views and the weight of the second, in 1/255ths. Where no blending happens
+    /// both views are the same, so the gather needs no branch.
+    Linear(Vec<[u8; 3]>),
+}
+
 /// A board's mapping baked into tables for one view resolution; weaving is then a gather.
 #[derive(Debug, Clone)]
 pub struct Weaver {
@@ -67,11 +144,8 @@ pub struct Weaver {
     view_w: u32,
     view_h: u32,
     views: usize,
-    blend: Blend,
-    /// First (or only) view of each panel subpixel, row-major, 3 per pixel.
-    view_of: Vec<u8>,
-    /// For [`Blend::Linear`]: weight of view `view_of + 1`, in 1/255ths (empty otherwise).
-    weight: Vec<u8>,
+    threads: usize,
+    table: Table,
     /// Byte offset inside a view row of the pixel each panel column samples.
     col_offset: Vec<usize>,
     /// Byte offset inside a view image of the row each panel row samples.
@@ -80,32 +154,23 @@ pub struct Weaver {
 
 impl Weaver {
     /// Precomputes the lookup tables for weaving `view_w`x`view_h` views onto `board`.
+    ///
+    /// Building and weaving use all available cores; see [`Weaver::with_threads`].
     pub fn new(board: &Board, view_w: u32, view_h: u32, blend: Blend) -> Weaver {
-        Weaver::from_mapping(&board.mapping(), view_w, view_h, blend)
+        Weaver::from_mapping(&board.mapping(), view_w, view_h, blend, default_threads())
     }
 
-    /// As [`Weaver::new`], from a mapping directly.
-    pub fn from_mapping(mapping: &Mapping, view_w: u32, view_h: u32, blend: Blend) -> Weaver {
+    /// As [`Weaver::new`], from a mapping directly and with an explicit thread count.
+    pub fn from_mapping(
+        mapping: &Mapping,
+        view_w: u32,
+        view_h: u32,
+        blend: Blend,
+        threads: usize,
+    ) -> Weaver {
         let (panel_w, panel_h) = mapping.panel_size();
-        let views = mapping.views();
-        let subpixels = panel_w as usize * panel_h as usize * 3;
-        let mut view_of = Vec::with_capacity(subpixels);
-        let mut weight = Vec::with_capacity(if blend == Blend::Linear { subpixels } else { 0 });
-        for y in 0..panel_h {
-            for x in 0..panel_w {
-                for c in 0..3 {
-                    let t = mapping.cone_position(x, y, c);
-                    match blend {
-                        Blend::Nearest => view_of.push(nearest_view(t, views) as u8),
-                        Blend::Linear => {
-                            let (v, w) = blend_views(t, views);
-                            view_of.push(v as u8);
-                            weight.push((w * 255.0).round() as u8);
-                        }
-                    }
-                }
-            }
-        }
+        let threads = threads.max(1);
+        let table = build_table(mapping, blend, threads);
         let (col_offset, row_offset) = if view_w == 0 || view_h == 0 {
             (Vec::new(), Vec::new())
         } else {
@@ -122,13 +187,18 @@ impl Weaver {
             panel_h,
             view_w,
             view_h,
-            views,
-            blend,
-            view_of,
-            weight,
+            views: mapping.views(),
+            threads,
+            table,
             col_offset,
             row_offset,
         }
+    }
+
+    /// Sets how many threads [`Weaver::weave`] splits the panel rows over.
+    pub fn with_threads(mut self, threads: usize) -> Weaver {
+        self.threads = threads.max(1);
+        self
     }
 
     pub fn panel_size(&self) -> (u32, u32) {
@@ -144,16 +214,19 @@ impl Weaver {
     }
 
     pub fn blend(&self) -> Blend {
-        self.blend
+        match self.table {
+            Table::Nearest(_) => Blend::Nearest,
+            Table::Linear(_) => Blend::Linear,
+        }
     }
 
     /// The (first) view feeding channel `c` of panel pixel (x, y), as baked in the table.
     pub fn view_at(&self, x: u32, y: u32, c: usize) -> usize {
-        self.view_of[self.subpixel(x, y, c)] as usize
-    }
-
-    fn subpixel(&self, x: u32, y: u32, c: usize) -> usize {
-        (y as usize * self.panel_w as usize + x as usize) * 3 + c
+        let i = (y as usize * self.panel_w as usize + x as usize) * 3 + c;
+        match &self.table {
+            Table::Nearest(t) => t[i] as usize,
+            Table::Linear(t) => t[i][0] as usize,
+        }
     }
 
     /// Weaves one panel frame from the views (view 0 the leftmost camera).
@@ -171,54 +244,40 @@ impl Weaver {
         }
         let sources: Vec<&[u8]> = views.iter().map(|v| v.as_raw().as_slice()).collect();
         let row_len = self.panel_w as usize * 3;
-        for (y, out_row) in out.chunks_exact_mut(row_len).enumerate() {
-            let table = y * row_len..(y + 1) * row_len;
-            let base = self.row_offset[y];
-            match self.blend {
-                Blend::Nearest => self.gather_row(&sources, base, &self.view_of[table], out_row),
-                Blend::Linear => self.blend_row(
-                    &sources,
-                    base,
-                    &self.view_of[table.clone()],
-                    &self.weight[table],
-                    out_row,
-                ),
+        for_row_chunks(out, row_len, self.threads, |first_row, chunk| {
+            for (i, out_row) in chunk.chunks_exact_mut(row_len).enumerate() {
+                let y = first_row + i;
+                let span = y * row_len..(y + 1) * row_len;
+                let base = self.row_offset[y];
+                match &self.table {
+                    Table::Nearest(t) => self.gather_row(&sources, base, &t[span], out_row),
+                    Table::Linear(t) => self.blend_row(&sources, base, &t[span], out_row),
+                }
             }
-        }
+        });
         Ok(())
     }
 
-    fn gather_row(&self, sources: &[&[u8]], base: usize, view_of: &[u8], out: &mut [u8]) {
-        for (x, &col) in self.col_offset.iter().enumerate() {
+    fn gather_row(&self, sources: &[&[u8]], base: usize, table: &[u8], out: &mut [u8]) {
+        let pixels = out.chunks_exact_mut(3).zip(table.chunks_exact(3));
+        for ((px, views), &col) in pixels.zip(&self.col_offset) {
             let at = base + col;
             for c in 0..3 {
-                let s = 3 * x + c;
-                out[s] = sources[view_of[s] as usize][at + c];
+                px[c] = sources[views[c] as usize][at + c];
             }
         }
     }
 
-    fn blend_row(
-        &self,
-        sources: &[&[u8]],
-        base: usize,
-        view_of: &[u8],
-        weight: &[u8],
-        out: &mut [u8],
-    ) {
-        for (x, &col) in self.col_offset.iter().enumerate() {
+    fn blend_row(&self, sources: &[&[u8]], base: usize, table: &[[u8; 3]], out: &mut [u8]) {
+        let pixels = out.chunks_exact_mut(3).zip(table.chunks_exact(3));
+        for ((px, entries), &col) in pixels.zip(&self.col_offset) {
             let at = base + col;
             for c in 0..3 {
-                let s = 3 * x + c;
-                let v = view_of[s] as usize;
-                let a = u32::from(sources[v][at + c]);
-                let w = u32::from(weight[s]);
-                out[s] = if w == 0 {
-                    a as u8
-                } else {
-                    let b = u32::from(sources[v + 1][at + c]);
-                    ((a * (255 - w) + b * w + 127) / 255) as u8
-                };
+                let [v0, v1, w] = entries[c];
+                let a = u32::from(sources[v0 as usize][at + c]);
+                let b = u32::from(sources[v1 as usize][at + c]);
+                let w = u32::from(w);
+                px[c] = ((a * (255 - w) + b * w + 127) / 255) as u8;
             }
         }
     }

@@ -159,6 +159,24 @@ fn builtin_portrait_matches_the_formula_everywhere_sampled() {
     assert!(checked > 10_000);
 }
 
+#[test]
+fn row_evaluation_agrees_bit_for_bit_with_single_subpixels() {
+    for name in ["looking-glass-go", "generic-8view", "sbs-2view"] {
+        let board = Board::builtin(name).unwrap();
+        let m = board.mapping();
+        let (w, h) = board.panel_size();
+        let mut row = vec![0.0; 3 * w as usize];
+        for y in [0, 1, h / 2, h - 1] {
+            m.cone_positions_row(y, &mut row);
+            for x in 0..w {
+                for c in 0..3 {
+                    assert_eq!(row[3 * x as usize + c], m.cone_position(x, y, c), "{name}");
+                }
+            }
+        }
+    }
+}
+
 /// Cone position difference on the circle (t and t ± 1 are the same phase).
 fn circular_diff(a: f64, b: f64) -> f64 {
     let d = (a - b).rem_euclid(1.0);

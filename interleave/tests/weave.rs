@@ -147,6 +147,22 @@ fn weave_rejects_wrong_views() {
 }
 
 #[test]
+fn threads_split_rows_without_changing_the_frame() {
+    let board = small_lg_board();
+    let views = coordinate_views(12, 30, 20);
+    for blend in [Blend::Nearest, Blend::Linear] {
+        let one = Weaver::from_mapping(&board.mapping(), 30, 20, blend, 1);
+        let frame = one.weave(&views).unwrap();
+        for threads in [2, 3, 7, 64] {
+            let many = Weaver::from_mapping(&board.mapping(), 30, 20, blend, threads);
+            assert_eq!(many.weave(&views).unwrap(), frame, "{blend:?} {threads}");
+            let swapped = one.clone().with_threads(threads);
+            assert_eq!(swapped.weave(&views).unwrap(), frame, "{blend:?} {threads}");
+        }
+    }
+}
+
+#[test]
 fn weave_into_reuses_the_frame() {
     let board = small_lg_board();
     let weaver = Weaver::new(&board, 30, 20, Blend::Nearest);

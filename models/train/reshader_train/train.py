@@ -227,159 +227,179 @@ def _reduce_mean(parts: dict[str, float], d: Dist) -> dict[str, float]:
     return {k: float(v) / d.world for k, v in zip(keys, t.tolist(), strict=True)}
 
 
+class RunLog:
+    """Rank 0's record of a run: log.csv, val.csv, the progress bar (or plain lines)."""
+
+    def __init__(self, args: argparse.Namespace, d: Dist, step: int) -> None:
+        self.args, self.d = args, d
+        self.t0 = self.t_last = time.time()
+        self.step_last = step
+        self.progress = None
+        if d.main and not args.no_progress:
+            from tqdm import tqdm
+
+            self.progress = tqdm(total=args.steps, initial=step, dynamic_ncols=True, smoothing=0.05)
+
+    def step(self, step: int, parts: dict[str, float], lr: float, examples: int) -> None:
+        if step % self.args.log_every == 0 or step == self.args.steps:
+            parts = _reduce_mean(parts, self.d)
+            if self.d.main:
+                self._write(step, parts, lr, examples)
+        if self.progress is not None:
+            self.progress.update(1)
+            self.progress.set_postfix(loss=f"{parts['loss']:.4f}", lr=f"{lr:.0e}")
+
+    def _write(self, step: int, parts: dict[str, float], lr: float, examples: int) -> None:
+        now = time.time()
+        rate = (step - self.step_last) / max(now - self.t_last, 1e-9)
+        self.t_last, self.step_last = now, step
+        row = {**parts, "step": step, "lr": lr, "examples": examples}
+        row.update(steps_per_s=round(rate, 4), elapsed_s=round(now - self.t0, 1))
+        append_csv(self.args.run_dir / "log.csv", LOG_FIELDS, row)
+        if self.progress is None:
+            print(
+                f"step {step}/{self.args.steps} loss {parts['loss']:.4f} ({rate:.2f} steps/s)",
+                file=sys.stderr,
+            )
+
+    def validation(self, step: int, v: dict) -> None:
+        append_csv(self.args.run_dir / "val.csv", VAL_FIELDS, {**v, "step": step})
+        message = (
+            f"step {step}: val PSNR input {v['psnr_input']:.2f} ours "
+            f"{v['psnr_ours']:.2f} ({v['gain_db']:+.2f} dB)"
+        )
+        if self.progress is not None:
+            self.progress.write(message)
+        else:
+            print(message, file=sys.stderr)
+
+    def close(self) -> None:
+        if self.progress is not None:
+            self.progress.close()
+
+
+def make_criterion(args: argparse.Namespace, d: Dist) -> ReshadeLoss:
+    feature_net = load_feature_net(args.feature_net, args.vgg_weights).to(d.device)
+    bf16 = args.feature_precision == "bfloat16" or (
+        args.feature_precision == "auto" and bf16_is_fast(d.device)
+    )
+    return ReshadeLoss(feature_net, feature_dtype=torch.bfloat16 if bf16 else torch.float32)
+
+
+def restore(run_dir: Path, net: ReshadeNet, opt, feature_ident: str, d: Dist) -> int:
+    """Loads checkpoint.pt when there is one; returns the step to continue from."""
+    ckpt = load_resume(run_dir, net.cfg, d.device)
+    if ckpt is None:
+        return 0
+    net.load_state_dict(ckpt["model"])
+    opt.load_state_dict(ckpt["optimizer"])
+    if ckpt.get("feature_net") != feature_ident and d.main:
+        print(
+            f"warning: resuming a run trained with {ckpt.get('feature_net')} using {feature_ident}",
+            file=sys.stderr,
+        )
+    return int(ckpt["step"])
+
+
+def write_config(args: argparse.Namespace, d: Dist, net: ReshadeNet, meta: dict, step: int):
+    """config.json: this invocation's settings, plus every earlier invocation's command."""
+    path = args.run_dir / "config.json"
+    history = json.loads(path.read_text()).get("history", []) if path.exists() else []
+    command = " ".join(shlex.quote(a) for a in sys.argv)
+    history.append(
+        {"command": command, "from_step": step, "started": time.strftime("%FT%TZ", time.gmtime())}
+    )
+    config = {
+        **meta,
+        "command": command,
+        "net_config": net.cfg.to_json(),
+        "parameters": count_parameters(net),
+        "resumed_from_step": step,
+        "torch": torch.__version__,
+        "device": str(d.device),
+        "global_batch": args.batch_size * d.world,
+        "history": history,
+    }
+    atomic_write(path, lambda tmp: tmp.write_text(json.dumps(config, indent=2)))
+
+
+def train_step(model, criterion: ReshadeLoss, opt, batch: dict, lr: float, d: Dist, step: int):
+    for group in opt.param_groups:
+        group["lr"] = lr
+    b = {k: v.to(d.device, non_blocking=True) for k, v in batch.items()}
+    pred = model(b["image"], b["disparity"], b["camera"])
+    loss, parts = criterion(pred, b["target"], b["mask"])
+    if not torch.isfinite(loss):
+        raise FloatingPointError(f"loss is {float(loss)} at step {step}: {parts}")
+    opt.zero_grad(set_to_none=True)
+    loss.backward()
+    opt.step()
+    return parts
+
+
 def train(args: argparse.Namespace) -> ReshadeNet:
     """Runs (or resumes) training and returns the trained network (unwrapped)."""
     d = setup_distributed(args.device)
     if args.threads > 0:
         torch.set_num_threads(args.threads)
-    cfg = net_config(args.size)
     seed_everything(args.seed + d.rank)
-    run_dir: Path = args.run_dir
     if d.main:
-        run_dir.mkdir(parents=True, exist_ok=True)
-
-    feature_net = load_feature_net(args.feature_net, args.vgg_weights).to(d.device)
-    bf16 = args.feature_precision == "bfloat16" or (
-        args.feature_precision == "auto" and bf16_is_fast(d.device)
-    )
-    feature_dtype = torch.bfloat16 if bf16 else torch.float32
-    criterion = ReshadeLoss(feature_net, feature_dtype=feature_dtype)
+        args.run_dir.mkdir(parents=True, exist_ok=True)
+    criterion = make_criterion(args, d)
     dataset, sampler, loader = make_loader(args, d, shared_example_list(args, d))
-    val = (
-        ReshadeDataset(args.val_data, crop=None, augment=None) if args.val_data and d.main else None
-    )
+    val = ReshadeDataset(args.val_data) if args.val_data and d.main else None
 
-    net = ReshadeNet(cfg).to(d.device)
+    net = ReshadeNet(net_config(args.size)).to(d.device)
     opt = torch.optim.Adam(net.parameters(), lr=args.lr)
-    step = 0
-    ckpt = load_resume(run_dir, cfg, d.device)
-    if ckpt is not None:
-        net.load_state_dict(ckpt["model"])
-        opt.load_state_dict(ckpt["optimizer"])
-        step = int(ckpt["step"])
-        if ckpt.get("feature_net") != feature_net.ident and d.main:
-            print(
-                f"warning: resuming a run trained with {ckpt.get('feature_net')} using "
-                f"{feature_net.ident}",
-                file=sys.stderr,
-            )
-    model = (
-        DistributedDataParallel(
-            net, device_ids=[d.device.index] if d.device.type == "cuda" else None
-        )
-        if d.world > 1
-        else net
-    )
-
+    step = restore(args.run_dir, net, opt, criterion.feature_net.ident, d)
+    model = net
+    if d.world > 1:
+        ids = [d.device.index] if d.device.type == "cuda" else None
+        model = DistributedDataParallel(net, device_ids=ids)
+    args_json = {k: str(v) if isinstance(v, Path) else v for k, v in vars(args).items()}
     meta = {
-        "feature_net": feature_net.ident,
-        "feature_precision": str(feature_dtype).removeprefix("torch."),
-        "args": {
-            k: str(v) if isinstance(v, Path) else v
-            for k, v in vars(args).items()
-            if not k.startswith("_")
-        },
+        "feature_net": criterion.feature_net.ident,
+        "feature_precision": str(criterion.feature_dtype).removeprefix("torch."),
+        "args": {k: v for k, v in args_json.items() if not k.startswith("_")},
         "world_size": d.world,
         "train_examples": len(dataset),
     }
     if d.main:
         for name in ("log.csv", "val.csv"):
-            truncate_csv(run_dir / name, step)
-        config = {
-            **meta,
-            "command": " ".join(shlex.quote(a) for a in sys.argv),
-            "net_config": cfg.to_json(),
-            "parameters": count_parameters(net),
-            "resumed_from_step": step,
-            "torch": torch.__version__,
-            "device": str(d.device),
-            "global_batch": args.batch_size * d.world,
-        }
-        atomic_write(
-            run_dir / "config.json", lambda tmp: tmp.write_text(json.dumps(config, indent=2))
-        )
+            truncate_csv(args.run_dir / name, step)
+        write_config(args, d, net, meta, step)
         print(
             f"training {args.size} ({count_parameters(net) / 1e6:.2f} M parameters) on "
             f"{len(dataset)} examples, {d.world} process(es) on {d.device}, perceptual "
-            f"features: {feature_net.ident}; steps {step} -> {args.steps}",
+            f"features: {meta['feature_net']}; steps {step} -> {args.steps}",
             file=sys.stderr,
         )
 
-    progress = None
-    if d.main and not args.no_progress:
-        from tqdm import tqdm
-
-        progress = tqdm(total=args.steps, initial=step, dynamic_ncols=True, smoothing=0.05)
-    t0 = time.time()
-    t_last, step_last = t0, step
+    log = RunLog(args, d, step)
     net.train()
-    epoch = step // max(1, len(loader))
-    first_epoch = epoch
+    epoch = first_epoch = step // max(1, len(loader))
     while step < args.steps:
         if args.rescan and epoch > first_epoch:
             folders = shared_example_list(args, d)
             if len(folders) > len(dataset):
                 dataset, sampler, loader = make_loader(args, d, folders)
-                if d.main:
-                    print(f"dataset grew to {len(dataset)} examples", file=sys.stderr)
+                meta["train_examples"] = len(dataset)
         sampler.set_epoch(epoch)
         for batch in loader:
             if step >= args.steps:
                 break
             lr = lr_at(step, args)
-            for group in opt.param_groups:
-                group["lr"] = lr
-            b = {k: v.to(d.device, non_blocking=True) for k, v in batch.items()}
-            pred = model(b["image"], b["disparity"], b["camera"])
-            loss, parts = criterion(pred, b["target"], b["mask"])
-            if not torch.isfinite(loss):
-                raise FloatingPointError(f"loss is {float(loss)} at step {step}: {parts}")
-            opt.zero_grad(set_to_none=True)
-            loss.backward()
-            opt.step()
+            parts = train_step(model, criterion, opt, batch, lr, d, step)
             step += 1
-            if step % args.log_every == 0 or step == args.steps:
-                parts = _reduce_mean(parts, d)
-                if d.main:
-                    now = time.time()
-                    rate = (step - step_last) / max(now - t_last, 1e-9)
-                    t_last, step_last = now, step
-                    append_csv(
-                        run_dir / "log.csv",
-                        LOG_FIELDS,
-                        {
-                            **parts,
-                            "step": step,
-                            "lr": lr,
-                            "examples": len(dataset),
-                            "steps_per_s": round(rate, 4),
-                            "elapsed_s": round(now - t0, 1),
-                        },
-                    )
-                    if progress is None:
-                        print(
-                            f"step {step}/{args.steps} loss {parts['loss']:.4f} "
-                            f"({rate:.2f} steps/s)",
-                            file=sys.stderr,
-                        )
-            if progress is not None:
-                progress.update(1)
-                progress.set_postfix(loss=f"{parts['loss']:.4f}", lr=f"{lr:.0e}")
+            log.step(step, parts, lr, len(dataset))
             if d.main and (step % args.checkpoint_every == 0 or step == args.steps):
-                save_checkpoint(run_dir, net, opt, step, meta)
+                save_checkpoint(args.run_dir, net, opt, step, meta)
             if val is not None and (step % args.val_every == 0 or step == args.steps):
                 if args.rescan and len(val) < args.val_examples:
-                    val = ReshadeDataset(args.val_data, crop=None, augment=None)
-                v = validate(net, val, args.val_examples, d.device)
-                append_csv(run_dir / "val.csv", VAL_FIELDS, {**v, "step": step})
-                if progress is not None:
-                    progress.write(
-                        f"step {step}: val PSNR input {v['psnr_input']:.2f} ours "
-                        f"{v['psnr_ours']:.2f} ({v['gain_db']:+.2f} dB)"
-                    )
+                    val = ReshadeDataset(args.val_data)
+                log.validation(step, validate(net, val, args.val_examples, d.device))
         epoch += 1
-    if progress is not None:
-        progress.close()
+    log.close()
     if d.world > 1:
         dist.barrier()
     return net

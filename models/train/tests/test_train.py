@@ -92,7 +92,9 @@ def test_train_writes_run_dir_and_resumes(data, tmp_path):
     net2 = train(train_args(data, run, 6))
     assert torch.load(run / "checkpoint.pt", weights_only=False)["step"] == 6
     assert [int(r["step"]) for r in read_csv(run / "log.csv")] == [1, 2, 3, 4, 5, 6]
-    assert json.loads((run / "config.json").read_text())["resumed_from_step"] == 4
+    config = json.loads((run / "config.json").read_text())
+    assert config["resumed_from_step"] == 4
+    assert [h["from_step"] for h in config["history"]] == [0, 4]
     assert any(not torch.equal(trained[k], v) for k, v in net2.state_dict().items())
 
 

@@ -336,6 +336,16 @@ impl Board {
         set_if(&mut self.width, cal.screen_w);
         set_if(&mut self.height, cal.screen_h);
         set_if(&mut self.view_cone_deg, cal.view_cone_deg);
+        log::info!(
+            "board {}: calibration {} applied (pitch {}, slope {}, center {}; panel {}x{})",
+            self.name,
+            cal.origin,
+            cal.pitch,
+            cal.slope,
+            cal.center,
+            self.width,
+            self.height
+        );
         self.origin = format!("{} calibrated by {}", self.origin, cal.origin);
         Ok(())
     }

@@ -19,7 +19,11 @@ fn coordinate_views(n: usize, w: u32, h: u32) -> Vec<RgbImage> {
 }
 
 fn small_lg_board() -> Board {
-    let text = r#"
+    Board::from_toml_str(&small_lg_board_text(), "small.toml").unwrap()
+}
+
+fn small_lg_board_text() -> String {
+    r#"
         name = "small"
         width = 60
         height = 40
@@ -33,8 +37,8 @@ fn small_lg_board() -> Board {
         center = 0.5
         inv_view = true
         dpi = 30.0
-    "#;
-    Board::from_toml_str(text, "small.toml").unwrap()
+    "#
+    .to_string()
 }
 
 #[test]
@@ -78,6 +82,27 @@ fn small_views_are_sampled_at_the_normalised_position() {
     // The last panel pixel samples the last view pixel.
     let last = panel.get_pixel(1919, 1079);
     assert_eq!((last[0], last[1]), (95, 53));
+}
+
+#[test]
+fn flip_image_flags_mirror_the_sampled_views() {
+    let text = small_lg_board_text().replace(
+        "dpi = 30.0",
+        "dpi = 30.0\nflip_image_x = true\nflip_image_y = true",
+    );
+    let board = Board::from_toml_str(&text, "flipped.toml").unwrap();
+    let views = coordinate_views(12, 60, 40);
+    let panel = Weaver::new(&board, 60, 40, Blend::Nearest)
+        .weave(&views)
+        .unwrap();
+    for (x, y, px) in panel.enumerate_pixels() {
+        // R carries the sampled view column, G the sampled view row.
+        assert_eq!(
+            (px[0], px[1]),
+            ((59 - x) as u8, (39 - y) as u8),
+            "({x},{y})"
+        );
+    }
 }
 
 #[test]

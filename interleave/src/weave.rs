@@ -137,7 +137,7 @@ enum Table {
 }
 
 /// A board's mapping baked into tables for one view resolution; weaving is then a gather.
-#[derive(Debug, Clone)]
+#[derive(Clone)]
 pub struct Weaver {
     panel_w: u32,
     panel_h: u32,
@@ -150,6 +150,19 @@ pub struct Weaver {
     col_offset: Vec<usize>,
     /// Byte offset inside a view image of the row each panel row samples.
     row_offset: Vec<usize>,
+}
+
+/// Summarises instead of dumping millions of table entries into a log.
+impl std::fmt::Debug for Weaver {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Weaver")
+            .field("panel", &(self.panel_w, self.panel_h))
+            .field("view", &(self.view_w, self.view_h))
+            .field("views", &self.views)
+            .field("blend", &self.blend())
+            .field("threads", &self.threads)
+            .finish_non_exhaustive()
+    }
 }
 
 impl Weaver {

@@ -323,12 +323,12 @@ def qat(args: argparse.Namespace) -> dict:
         "step": int(base.get("step", 0)) + args.steps,
         "feature_net": feature_net.ident,
         "args": base.get("args", {}),
-        "base_checkpoint": str(args.checkpoint),
+        "base_checkpoint": str(args.checkpoint.resolve()),
         "base_step": base.get("step"),
         "qat_command": command_line("quantize", args, ("checkpoint",)),
         "qat_steps": args.steps,
         "qat_wall_time_s": round(time.time() - t0, 1),
-        "qat_data": str(args.data),
+        "qat_data": str(args.data.resolve()),
         "validation": validation,
     }
 

@@ -1,0 +1,584 @@
+//! Depth maps: reading (.npy, 16-bit PNG, PFM, OpenEXR), validation, the normalisation
+//! of relative disparity to scene depth, resizing to the photo, and writing.
+//!
+//! Depth is the distance along the camera's +z axis (OpenCV axes), in scene units.
+//! With `--depth-kind depth` the file's units are kept. With `--depth-kind disparity`
+//! the values are taken as relative, affine-ambiguous disparity (what monocular depth
+//! networks output, larger = nearer) and mapped so that the 2nd percentile lands at
+//! depth [`FAR`] and the 98th at [`NEAR`]: the training data's subject range.
+
+use std::io::Cursor;
+use std::path::{Path, PathBuf};
+
+use image::{DynamicImage, ImageBuffer, ImageFormat, Luma};
+
+use crate::npy::{self, NpyError};
+use crate::output::{FileFormat, OutputError};
+use crate::pfm::{self, PfmError};
+
+/// Depth given to the 98th disparity percentile of a relative-disparity map.
+pub const NEAR: f32 = 1.0;
+/// Depth given to the 2nd disparity percentile of a relative-disparity map.
+pub const FAR: f32 = 5.0;
+/// Relative disparity beyond the percentiles is clamped to this depth range, so that
+/// sky or a stray near pixel cannot produce infinite or negative depth.
+pub const MIN_DEPTH: f32 = 0.5;
+pub const MAX_DEPTH: f32 = 50.0;
+/// 16-bit PNG values are thousandths of a unit (millimetres for metric depth).
+pub const PNG_UNITS_PER_VALUE: f32 = 0.001;
+/// Depth and photo aspect ratios may differ this much (relative) before it is an error:
+/// enough for maps whose sides were rounded to multiples of 32.
+pub const ASPECT_TOLERANCE: f64 = 0.05;
+const MAX_SIDE: usize = 1 << 15;
+
+#[derive(Debug, thiserror::Error)]
+pub enum DepthError {
+    #[error("cannot read depth map {path}: {source}")]
+    Io {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error("depth map {path}: {source}")]
+    Npy { path: PathBuf, source: NpyError },
+    #[error("depth map {path}: {source}")]
+    Pfm { path: PathBuf, source: PfmError },
+    #[error("cannot decode depth map {path}: {source}")]
+    Decode {
+        path: PathBuf,
+        source: image::ImageError,
+    },
+    #[error("depth map {path}: {detail}")]
+    Channels { path: PathBuf, detail: String },
+    #[error("depth map {path}: unsupported file type; use .npy, .png (16-bit), .pfm or .exr")]
+    Extension { path: PathBuf },
+    #[error("depth map {path}: size {width}x{height} is out of range")]
+    Size {
+        path: PathBuf,
+        width: usize,
+        height: usize,
+    },
+    #[error("depth map {path} has {count} NaN or infinite values (first at x={x}, y={y})")]
+    NotFinite {
+        path: PathBuf,
+        count: usize,
+        x: usize,
+        y: usize,
+    },
+    #[error("depth map {path} has all values equal ({value}); it carries no depth")]
+    Constant { path: PathBuf, value: f32 },
+    #[error(
+        "depth map {path} has {count} values <= 0 (first at x={x}, y={y}); \
+         depth must be positive (is it disparity? pass --depth-kind disparity)"
+    )]
+    NonPositive {
+        path: PathBuf,
+        count: usize,
+        x: usize,
+        y: usize,
+    },
+    #[error(
+        "depth map {path} is {depth_w}x{depth_h} but the photo is {photo_w}x{photo_h}: \
+         aspect ratios {:.3} and {:.3} differ (rotated or cropped?)",
+        *depth_w as f64 / *depth_h as f64, *photo_w as f64 / *photo_h as f64
+    )]
+    Aspect {
+        path: PathBuf,
+        depth_w: usize,
+        depth_h: usize,
+        photo_w: u32,
+        photo_h: u32,
+    },
+    #[error(transparent)]
+    Output(#[from] OutputError),
+}
+
+/// How the numbers in a depth file are to be read.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, clap::ValueEnum)]
+#[serde(rename_all = "snake_case")]
+pub enum DepthKind {
+    /// Distance along the optical axis, in scene units.
+    Depth,
+    /// Relative disparity (larger = nearer), affine-ambiguous.
+    Disparity,
+}
+
+/// Scene depth per pixel, rows top to bottom.
+#[derive(Clone, Debug, PartialEq)]
+pub struct DepthMap {
+    width: usize,
+    height: usize,
+    data: Vec<f32>,
+}
+
+/// The map as it was in the file, before interpretation.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RawMap {
+    pub width: usize,
+    pub height: usize,
+    pub values: Vec<f32>,
+}
+
+/// What loading did to the file, for the log and run.json.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct DepthReport {
+    pub kind: DepthKind,
+    pub file_size: [usize; 2],
+    pub resized_to: Option<[usize; 2]>,
+    /// Disparity percentiles (2nd, 98th) mapped to FAR and NEAR, for relative disparity.
+    pub disparity_percentiles: Option<[f32; 2]>,
+    pub depth_range: [f32; 2],
+}
+
+impl DepthMap {
+    pub fn new(width: usize, height: usize, data: Vec<f32>) -> Self {
+        assert_eq!(
+            width * height,
+            data.len(),
+            "depth buffer does not match size"
+        );
+        Self {
+            width,
+            height,
+            data,
+        }
+    }
+
+    pub fn width(&self) -> usize {
+        self.width
+    }
+
+    pub fn height(&self) -> usize {
+        self.height
+    }
+
+    pub fn data(&self) -> &[f32] {
+        &self.data
+    }
+
+    pub fn at(&self, x: usize, y: usize) -> f32 {
+        self.data[y * self.width + x]
+    }
+
+    /// Reads, validates and interprets a depth file and fits it to a photo of
+    /// `photo_w`×`photo_h` pixels.
+    pub fn load(
+        path: &Path,
+        kind: DepthKind,
+        photo_w: u32,
+        photo_h: u32,
+    ) -> Result<(Self, DepthReport), DepthError> {
+        let raw = read_raw(path)?;
+        check_finite(path, &raw)?;
+        check_not_constant(path, &raw)?;
+        check_aspect(path, &raw, photo_w, photo_h)?;
+        let (map, percentiles) = match kind {
+            DepthKind::Depth => (Self::from_depth(path, raw.clone())?, None),
+            DepthKind::Disparity => {
+                let (map, p) = Self::from_relative_disparity(&raw);
+                (map, Some(p))
+            }
+        };
+        let target = (photo_w as usize, photo_h as usize);
+        let resized_to = (target != (map.width, map.height)).then(|| {
+            log::info!(
+                "depth map {} is {}x{}, resizing to the photo's {}x{}",
+                path.display(),
+                map.width,
+                map.height,
+                target.0,
+                target.1
+            );
+            [target.0, target.1]
+        });
+        let map = map.resized(target.0, target.1);
+        let report = DepthReport {
+            kind,
+            file_size: [raw.width, raw.height],
+            resized_to,
+            disparity_percentiles: percentiles,
+            depth_range: map.range(),
+        };
+        Ok((map, report))
+    }
+
+    fn from_depth(path: &Path, raw: RawMap) -> Result<Self, DepthError> {
+        let bad: Vec<usize> = (0..raw.values.len())
+            .filter(|&i| raw.values[i] <= 0.0)
+            .collect();
+        if let Some(&first) = bad.first() {
+            return Err(DepthError::NonPositive {
+                path: path.into(),
+                count: bad.len(),
+                x: first % raw.width,
+                y: first / raw.width,
+            });
+        }
+        Ok(Self::new(raw.width, raw.height, raw.values))
+    }
+
+    /// Maps relative disparity affinely so that its 2nd/98th percentiles land at 1/FAR
+    /// and 1/NEAR, then inverts it (see the module docs). Returns the percentiles used.
+    pub fn from_relative_disparity(raw: &RawMap) -> (Self, [f32; 2]) {
+        let (mut lo, mut hi) = (percentile(&raw.values, 0.02), percentile(&raw.values, 0.98));
+        if hi <= lo {
+            // Mostly constant with a few outliers: fall back to the full range.
+            lo = raw.values.iter().copied().fold(f32::INFINITY, f32::min);
+            hi = raw.values.iter().copied().fold(f32::NEG_INFINITY, f32::max);
+        }
+        let (d_far, d_near) = (1.0 / FAR, 1.0 / NEAR);
+        let data = raw
+            .values
+            .iter()
+            .map(|&v| {
+                let d = d_far + (v - lo) / (hi - lo) * (d_near - d_far);
+                1.0 / d.clamp(1.0 / MAX_DEPTH, 1.0 / MIN_DEPTH)
+            })
+            .collect();
+        (Self::new(raw.width, raw.height, data), [lo, hi])
+    }
+
+    pub fn range(&self) -> [f32; 2] {
+        let min = self.data.iter().copied().fold(f32::INFINITY, f32::min);
+        let max = self.data.iter().copied().fold(f32::NEG_INFINITY, f32::max);
+        [min, max]
+    }
+
+    /// Depth at the given fraction (0..=1) of the sorted values.
+    pub fn percentile(&self, q: f64) -> f32 {
+        percentile(&self.data, q)
+    }
+
+    /// Bilinear resampling in disparity (1/depth), pixel centres aligned: interpolating
+    /// depth itself would bias mixed pixels towards the background.
+    pub fn resized(&self, width: usize, height: usize) -> Self {
+        if (width, height) == (self.width, self.height) {
+            return self.clone();
+        }
+        let sx = self.width as f32 / width as f32;
+        let sy = self.height as f32 / height as f32;
+        let mut data = Vec::with_capacity(width * height);
+        for y in 0..height {
+            let fy = ((y as f32 + 0.5) * sy - 0.5).clamp(0.0, (self.height - 1) as f32);
+            let (y0, ty) = (fy.floor() as usize, fy.fract());
+            let y1 = (y0 + 1).min(self.height - 1);
+            for x in 0..width {
+                let fx = ((x as f32 + 0.5) * sx - 0.5).clamp(0.0, (self.width - 1) as f32);
+                let (x0, tx) = (fx.floor() as usize, fx.fract());
+                let x1 = (x0 + 1).min(self.width - 1);
+                let d = |x: usize, y: usize| 1.0 / self.at(x, y);
+                let top = d(x0, y0) * (1.0 - tx) + d(x1, y0) * tx;
+                let bottom = d(x0, y1) * (1.0 - tx) + d(x1, y1) * tx;
+                data.push(1.0 / (top * (1.0 - ty) + bottom * ty));
+            }
+        }
+        Self::new(width, height, data)
+    }
+
+    /// Scales every depth by `factor` (geometry is scale-covariant).
+    pub fn scaled(&self, factor: f32) -> Self {
+        Self::new(
+            self.width,
+            self.height,
+            self.data.iter().map(|d| d * factor).collect(),
+        )
+    }
+
+    /// Encodes the map in the format named by the extension of `path`: .npy (float32),
+    /// .pfm, .exr (float, depth in every channel) or .png (16-bit, thousandths of a unit).
+    pub fn encode(&self, path: &Path) -> Result<Vec<u8>, DepthError> {
+        let all = [
+            FileFormat::Npy,
+            FileFormat::Pfm,
+            FileFormat::Exr,
+            FileFormat::Png,
+        ];
+        let format = FileFormat::require(path, &all)?;
+        let encode_err = |source| {
+            DepthError::Output(OutputError::Encode {
+                path: path.into(),
+                source,
+            })
+        };
+        match format {
+            FileFormat::Npy => Ok(npy::encode_f32(&[self.height, self.width], &self.data)),
+            FileFormat::Pfm => Ok(pfm::encode(self.width, self.height, &self.data)),
+            FileFormat::Exr => {
+                let rgb: Vec<f32> = self.data.iter().flat_map(|&d| [d, d, d]).collect();
+                let img = image::Rgb32FImage::from_raw(self.width as u32, self.height as u32, rgb)
+                    .expect("buffer matches size");
+                let mut buf = Cursor::new(Vec::new());
+                img.write_to(&mut buf, ImageFormat::OpenExr)
+                    .map_err(encode_err)?;
+                Ok(buf.into_inner())
+            }
+            FileFormat::Png => {
+                let clipped = self
+                    .data
+                    .iter()
+                    .filter(|&&d| d / PNG_UNITS_PER_VALUE > f32::from(u16::MAX))
+                    .count();
+                if clipped > 0 {
+                    log::warn!(
+                        "{}: {clipped} depths exceed the 16-bit PNG range ({} units) and are clipped",
+                        path.display(),
+                        f32::from(u16::MAX) * PNG_UNITS_PER_VALUE
+                    );
+                }
+                let values: Vec<u16> = self
+                    .data
+                    .iter()
+                    .map(|&d| (d / PNG_UNITS_PER_VALUE).round().clamp(1.0, 65535.0) as u16)
+                    .collect();
+                let img: ImageBuffer<Luma<u16>, Vec<u16>> =
+                    ImageBuffer::from_raw(self.width as u32, self.height as u32, values)
+                        .expect("buffer matches size");
+                let mut buf = Cursor::new(Vec::new());
+                img.write_to(&mut buf, ImageFormat::Png)
+                    .map_err(encode_err)?;
+                Ok(buf.into_inner())
+            }
+        }
+    }
+}
+
+/// Reads the numbers of a depth file without interpreting them.
+pub fn read_raw(path: &Path) -> Result<RawMap, DepthError> {
+    let bytes = std::fs::read(path).map_err(|source| DepthError::Io {
+        path: path.into(),
+        source,
+    })?;
+    let raw = match FileFormat::from_path(path) {
+        Some(FileFormat::Npy) => {
+            let arr = npy::parse(&bytes).map_err(|source| DepthError::Npy {
+                path: path.into(),
+                source,
+            })?;
+            RawMap {
+                width: arr.cols,
+                height: arr.rows,
+                values: arr.data,
+            }
+        }
+        Some(FileFormat::Pfm) => {
+            let map = pfm::parse(&bytes).map_err(|source| DepthError::Pfm {
+                path: path.into(),
+                source,
+            })?;
+            RawMap {
+                width: map.width,
+                height: map.height,
+                values: map.data,
+            }
+        }
+        Some(FileFormat::Png) => read_png16(path, &bytes)?,
+        Some(FileFormat::Exr) => read_exr(path, &bytes)?,
+        None => return Err(DepthError::Extension { path: path.into() }),
+    };
+    if raw.width == 0 || raw.height == 0 || raw.width > MAX_SIDE || raw.height > MAX_SIDE {
+        return Err(DepthError::Size {
+            path: path.into(),
+            width: raw.width,
+            height: raw.height,
+        });
+    }
+    Ok(raw)
+}
+
+fn decode_image(
+    path: &Path,
+    bytes: &[u8],
+    format: ImageFormat,
+) -> Result<DynamicImage, DepthError> {
+    let mut reader = image::ImageReader::with_format(Cursor::new(bytes), format);
+    let mut limits = image::Limits::default();
+    limits.max_image_width = Some(MAX_SIDE as u32);
+    limits.max_image_height = Some(MAX_SIDE as u32);
+    reader.limits(limits);
+    reader.decode().map_err(|source| DepthError::Decode {
+        path: path.into(),
+        source,
+    })
+}
+
+fn read_png16(path: &Path, bytes: &[u8]) -> Result<RawMap, DepthError> {
+    let DynamicImage::ImageLuma16(img) = decode_image(path, bytes, ImageFormat::Png)? else {
+        return Err(DepthError::Channels {
+            path: path.into(),
+            detail: "a PNG depth map must be 16-bit greyscale".into(),
+        });
+    };
+    Ok(RawMap {
+        width: img.width() as usize,
+        height: img.height() as usize,
+        values: img
+            .as_raw()
+            .iter()
+            .map(|&v| f32::from(v) * PNG_UNITS_PER_VALUE)
+            .collect(),
+    })
+}
+
+/// EXR depth is read from the first (red or luminance) channel.
+fn read_exr(path: &Path, bytes: &[u8]) -> Result<RawMap, DepthError> {
+    let img = decode_image(path, bytes, ImageFormat::OpenExr)?.into_rgb32f();
+    Ok(RawMap {
+        width: img.width() as usize,
+        height: img.height() as usize,
+        values: img.pixels().map(|p| p.0[0]).collect(),
+    })
+}
+
+fn check_finite(path: &Path, raw: &RawMap) -> Result<(), DepthError> {
+    let mut bad = raw
+        .values
+        .iter()
+        .enumerate()
+        .filter(|(_, v)| !v.is_finite());
+    if let Some((first, _)) = bad.next() {
+        return Err(DepthError::NotFinite {
+            path: path.into(),
+            count: 1 + bad.count(),
+            x: first % raw.width,
+            y: first / raw.width,
+        });
+    }
+    Ok(())
+}
+
+fn check_not_constant(path: &Path, raw: &RawMap) -> Result<(), DepthError> {
+    let first = raw.values[0];
+    if raw.values.iter().all(|&v| v == first) {
+        return Err(DepthError::Constant {
+            path: path.into(),
+            value: first,
+        });
+    }
+    Ok(())
+}
+
+fn check_aspect(path: &Path, raw: &RawMap, photo_w: u32, photo_h: u32) -> Result<(), DepthError> {
+    let depth_aspect = raw.width as f64 / raw.height as f64;
+    let photo_aspect = f64::from(photo_w) / f64::from(photo_h);
+    if (depth_aspect / photo_aspect - 1.0).abs() > ASPECT_TOLERANCE {
+        return Err(DepthError::Aspect {
+            path: path.into(),
+            depth_w: raw.width,
+            depth_h: raw.height,
+            photo_w,
+            photo_h,
+        });
+    }
+    Ok(())
+}
+
+fn percentile(values: &[f32], q: f64) -> f32 {
+    let mut sorted = values.to_vec();
+    let k = ((sorted.len() - 1) as f64 * q.clamp(0.0, 1.0)).round() as usize;
+    let (_, v, _) = sorted.select_nth_unstable_by(k, f32::total_cmp);
+    *v
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn write(dir: &Path, name: &str, bytes: &[u8]) -> PathBuf {
+        let path = dir.join(name);
+        std::fs::write(&path, bytes).unwrap();
+        path
+    }
+
+    fn ramp(w: usize, h: usize) -> DepthMap {
+        DepthMap::new(w, h, (0..w * h).map(|i| 1.0 + i as f32 * 0.25).collect())
+    }
+
+    #[test]
+    fn every_writer_roundtrips_through_its_reader() {
+        let dir = tempfile::tempdir().unwrap();
+        let map = ramp(4, 3);
+        for ext in ["npy", "pfm", "exr", "png"] {
+            let path = dir.path().join(format!("d.{ext}"));
+            std::fs::write(&path, map.encode(&path).unwrap()).unwrap();
+            let (back, report) = DepthMap::load(&path, DepthKind::Depth, 4, 3).unwrap();
+            assert_eq!(report.resized_to, None);
+            for (a, b) in back.data().iter().zip(map.data()) {
+                assert!((a - b).abs() < 1e-3, "{ext}: {a} vs {b}");
+            }
+        }
+    }
+
+    #[test]
+    fn relative_disparity_maps_percentiles_to_training_range() {
+        let raw = RawMap {
+            width: 101,
+            height: 1,
+            values: (0..101).map(|i| i as f32 * 10.0 - 300.0).collect(),
+        };
+        let (map, [lo, hi]) = DepthMap::from_relative_disparity(&raw);
+        assert_eq!((lo, hi), (-280.0, 680.0));
+        assert!((map.at(2, 0) - FAR).abs() < 1e-4);
+        assert!((map.at(98, 0) - NEAR).abs() < 1e-4);
+        // Larger disparity is nearer, monotonically.
+        assert!(map.data().windows(2).all(|w| w[1] <= w[0]));
+        let [min, max] = map.range();
+        assert!(min >= MIN_DEPTH && max <= MAX_DEPTH);
+    }
+
+    #[test]
+    fn nan_constant_nonpositive_and_aspect_are_errors() {
+        let dir = tempfile::tempdir().unwrap();
+        let nan = write(
+            dir.path(),
+            "nan.npy",
+            &npy::encode_f32(&[2, 2], &[1.0, f32::NAN, 2.0, f32::INFINITY]),
+        );
+        let err = DepthMap::load(&nan, DepthKind::Depth, 2, 2).unwrap_err();
+        assert!(
+            matches!(
+                err,
+                DepthError::NotFinite {
+                    count: 2,
+                    x: 1,
+                    y: 0,
+                    ..
+                }
+            ),
+            "{err}"
+        );
+        let flat = write(dir.path(), "flat.npy", &npy::encode_f32(&[2, 2], &[3.0; 4]));
+        let err = DepthMap::load(&flat, DepthKind::Disparity, 2, 2).unwrap_err();
+        assert!(matches!(err, DepthError::Constant { .. }), "{err}");
+        let neg = write(
+            dir.path(),
+            "neg.npy",
+            &npy::encode_f32(&[1, 2], &[1.0, -1.0]),
+        );
+        let err = DepthMap::load(&neg, DepthKind::Depth, 2, 1).unwrap_err();
+        assert!(matches!(err, DepthError::NonPositive { x: 1, .. }), "{err}");
+        assert!(DepthMap::load(&neg, DepthKind::Disparity, 2, 1).is_ok());
+        let err = DepthMap::load(&neg, DepthKind::Disparity, 1, 2).unwrap_err();
+        assert!(err.to_string().contains("aspect"), "{err}");
+    }
+
+    #[test]
+    fn resizing_keeps_a_constant_region_constant() {
+        let mut data = vec![2.0; 8 * 8];
+        data[0] = 4.0;
+        let map = DepthMap::new(8, 8, data).resized(16, 16);
+        assert_eq!((map.width(), map.height()), (16, 16));
+        assert!((map.at(15, 15) - 2.0).abs() < 1e-6);
+        assert!(map.at(0, 0) > 2.0);
+    }
+
+    #[test]
+    fn eight_bit_png_is_refused() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("d8.png");
+        image::GrayImage::from_raw(2, 1, vec![1, 2])
+            .unwrap()
+            .save(&path)
+            .unwrap();
+        let err = read_raw(&path).unwrap_err();
+        assert!(err.to_string().contains("16-bit"), "{err}");
+    }
+}

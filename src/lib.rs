@@ -1,0 +1,20 @@
+//! reshader: turns one photo and its depth into the views, quilt and woven frame a
+//! lenticular light-field panel shows.
+//!
+//! Stages, each behind its own module: [`photo`] and [`depth`] load the inputs, [`views`]
+//! places the view cameras, [`reshade`] changes the shading per view, [`relocate`] moves
+//! the pixels to the view, and [`pipeline`] runs them in order and hands the views to the
+//! `interleave` crate; [`output`] and [`record`] write the results and run.json.
+
+pub mod depth;
+pub mod npy;
+pub mod output;
+pub mod pfm;
+pub mod photo;
+pub mod pipeline;
+pub mod record;
+pub mod relocate;
+pub mod reshade;
+pub mod views;
+
+pub use interleave;

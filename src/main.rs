@@ -1,0 +1,374 @@
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+
+use anyhow::{bail, Result};
+use clap::{Args, Parser, Subcommand, ValueEnum};
+
+use reshader::depth::DepthKind;
+use reshader::interleave::{Blend, Board};
+use reshader::output;
+use reshader::pipeline::{self, Product, RenderOptions, Scene, ViewRequest};
+use reshader::relocate::MeshWarp;
+use reshader::reshade::IdentityReshader;
+
+const ABOUT: &str = "Turn one photo and its depth into the views, quilt and woven frame of a \
+lenticular light-field panel.";
+
+const LONG_ABOUT: &str = "\
+Turn one photo and its depth into the views, quilt and woven frame of a lenticular
+light-field panel (Looking Glass and other slanted-lenticular displays).
+
+The main job is `render`; every stage also runs alone for scripting and debugging.
+
+Examples:
+  # everything for a Looking Glass Portrait: views/, quilt, panel.png, sbs.png, run.json
+  reshader render examples/pumpkin/pumpkin.jpg --depth examples/pumpkin/pumpkin_disparity.png \\
+      --depth-kind disparity --board looking-glass-portrait --out out/
+
+  # only the woven frame and the quilt, with a unit's own calibration
+  reshader render photo.jpg --depth depth.npy --board looking-glass-go \\
+      --calibration visual.json --only panel,quilt --out out/
+
+  # one novel view, camera 0.1 units to the right (OpenCV axes: x right, y down, z forward)
+  reshader view photo.jpg --depth depth.npy --camera 0.1,0,0 --out view.png
+
+  # weave views you rendered elsewhere
+  reshader weave out/views --board looking-glass-portrait --out panel.png
+
+  reshader boards        # the built-in boards
+
+Errors name the file and the problem and exit non-zero; nothing is written then.";
+
+#[derive(Parser)]
+#[command(name = "reshader", version, about = ABOUT, long_about = LONG_ABOUT)]
+struct Cli {
+    /// More log output (-v: progress, -vv: debug).
+    #[arg(short, long, action = clap::ArgAction::Count, global = true)]
+    verbose: u8,
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Render all views of a board and write views/, the quilt, panel.png, sbs.png and run.json.
+    #[command(long_about = RENDER_ABOUT)]
+    Render(RenderArgs),
+    /// Estimate depth for a photo (needs a depth model; none is shipped yet).
+    Depth(DepthArgs),
+    /// Reshade the photo for a novel camera, in the input camera's frame.
+    #[command(long_about = RESHADE_ABOUT)]
+    Reshade(SingleViewArgs),
+    /// Render the novel view from one camera position.
+    #[command(long_about = VIEW_ABOUT)]
+    View(ViewArgs),
+    /// Weave a directory of views (view_00.png …) into a panel frame.
+    Weave(WeaveArgs),
+    /// List the built-in boards.
+    Boards,
+}
+
+const RENDER_ABOUT: &str = "\
+Render all views of a board from a photo and its depth.
+
+Writes into --out:
+  views/view_00.png … view_{N-1}.png   view 0 is the leftmost camera
+  quilt_qs{cols}x{rows}a{aspect}.png   Looking-Glass quilt, view 0 bottom-left
+  panel.png                            the frame woven for the board's panel
+  sbs.png                              side-by-side pair (outermost views, or --sbs-pair)
+  run.json                             inputs with sha256, board, camera per view, timings
+
+Cameras sit on a horizontal line, view 0 leftmost. With --depthiness 1 the outermost
+cameras see the zero-parallax plane (--focus, default: the depth halfway between the
+scene's near and far parts in disparity) at the edges of the board's view cone; by
+default the baseline is reduced so that the outermost views move nothing by more than
+3% of the view width. Points on the zero-parallax plane stay put between views.
+
+Example:
+  reshader render photo.jpg --depth depth.png --depth-kind disparity \\
+      --board looking-glass-portrait --out out/";
+
+const RESHADE_ABOUT: &str = "\
+Reshade the photo as seen from --camera, keeping the input camera's frame.
+Until a reshading model is shipped this returns the photo unchanged (and says so).
+
+Example:
+  reshader reshade photo.jpg --depth depth.npy --camera 0.1,0,0 --out reshaded.png";
+
+const VIEW_ABOUT: &str = "\
+Render the novel view from --camera: reshade (unless --no-reshade), then relocate the
+pixels with the depth. The projection is sheared so the zero-parallax plane (--focus)
+stays put, as in `render`: a render's view k equals `view` with run.json's camera k.
+
+Example:
+  reshader view photo.jpg --depth depth.npy --camera -0.2,0,0 --out view.exr";
+
+#[derive(Args)]
+struct SceneArgs {
+    /// The photo (JPEG or PNG).
+    photo: PathBuf,
+    /// Depth map: .npy (float32/float16/uint16), 16-bit .png (thousandths of a unit), .pfm or .exr.
+    #[arg(long)]
+    depth: PathBuf,
+    /// How to read the depth file: depth in scene units, or relative disparity (larger =
+    /// nearer), normalised so the scene spans depth 1 to 5 units.
+    #[arg(long, value_enum, default_value_t = DepthKind::Depth)]
+    depth_kind: DepthKind,
+    /// Horizontal field of view in degrees [default: from EXIF 35 mm focal length, else 45].
+    #[arg(long)]
+    fov: Option<f64>,
+    /// Depth of the zero-parallax plane, in depth-map units [default: robust middle depth].
+    #[arg(long)]
+    focus: Option<f64>,
+}
+
+#[derive(Args)]
+struct RenderArgs {
+    #[command(flatten)]
+    scene: SceneArgs,
+    /// Built-in board name (see `reshader boards`) or path of a board .toml file.
+    #[arg(long)]
+    board: String,
+    /// Per-unit calibration in Looking-Glass visual.json form; overrides the board's values.
+    #[arg(long)]
+    calibration: Option<PathBuf>,
+    /// Scales the camera baseline: 1 spans the board's view cone, 0 is flat [default: the
+    /// largest value (at most 1) that keeps the outermost views' parallax within 3% of the
+    /// view width].
+    #[arg(long)]
+    depthiness: Option<f64>,
+    /// Subpixels between two views' centres: the nearest view, or a linear mix.
+    #[arg(long, value_enum, default_value_t = BlendArg::Nearest)]
+    blend: BlendArg,
+    /// Write only these products (comma-separated); run.json is always written.
+    #[arg(long, value_enum, value_delimiter = ',')]
+    only: Vec<Product>,
+    /// The two views of sbs.png, as LEFT,RIGHT [default: outermost].
+    #[arg(long, value_parser = parse_pair)]
+    sbs_pair: Option<(usize, usize)>,
+    /// Write files only, no display (the default; display output comes later).
+    #[arg(long, default_value_t = true)]
+    headless: bool,
+    /// Output directory.
+    #[arg(long)]
+    out: PathBuf,
+}
+
+#[derive(Args)]
+struct DepthArgs {
+    photo: PathBuf,
+    #[arg(long)]
+    out: PathBuf,
+}
+
+#[derive(Args)]
+struct SingleViewArgs {
+    #[command(flatten)]
+    scene: SceneArgs,
+    /// Novel camera centre TX,TY,TZ in the input camera's frame (OpenCV: x right, y down,
+    /// z forward), in depth-map units.
+    #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true)]
+    camera: [f64; 3],
+    /// Output image: .png (8-bit), .exr or .npy (float).
+    #[arg(long)]
+    out: PathBuf,
+}
+
+#[derive(Args)]
+struct ViewArgs {
+    #[command(flatten)]
+    single: SingleViewArgs,
+    /// Skip reshading: relocate the photo's own colours.
+    #[arg(long)]
+    no_reshade: bool,
+}
+
+#[derive(Args)]
+struct WeaveArgs {
+    /// Directory holding view_00.png … view_{N-1}.png.
+    view_dir: PathBuf,
+    #[arg(long)]
+    board: String,
+    #[arg(long)]
+    calibration: Option<PathBuf>,
+    #[arg(long, value_enum, default_value_t = BlendArg::Nearest)]
+    blend: BlendArg,
+    /// Output panel image (.png).
+    #[arg(long)]
+    out: PathBuf,
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+enum BlendArg {
+    Nearest,
+    Linear,
+}
+
+impl From<BlendArg> for Blend {
+    fn from(b: BlendArg) -> Self {
+        match b {
+            BlendArg::Nearest => Blend::Nearest,
+            BlendArg::Linear => Blend::Linear,
+        }
+    }
+}
+
+fn parse_vec3(s: &str) -> Result<[f64; 3], String> {
+    let parts: Vec<&str> = s.split(',').map(str::trim).collect();
+    let [x, y, z] = parts.as_slice() else {
+        return Err(format!("expected TX,TY,TZ (three numbers), got '{s}'"));
+    };
+    let num = |t: &str| {
+        t.parse::<f64>()
+            .ok()
+            .filter(|v| v.is_finite())
+            .ok_or_else(|| format!("'{t}' is not a finite number"))
+    };
+    Ok([num(x)?, num(y)?, num(z)?])
+}
+
+fn parse_pair(s: &str) -> Result<(usize, usize), String> {
+    let (a, b) = s
+        .split_once(',')
+        .ok_or_else(|| format!("expected LEFT,RIGHT view indices, got '{s}'"))?;
+    let idx = |t: &str| {
+        t.trim()
+            .parse::<usize>()
+            .map_err(|_| format!("'{t}' is not a view index"))
+    };
+    Ok((idx(a)?, idx(b)?))
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    let level = match cli.verbose {
+        0 => log::LevelFilter::Warn,
+        1 => log::LevelFilter::Info,
+        _ => log::LevelFilter::Debug,
+    };
+    env_logger::Builder::new()
+        .filter_level(level)
+        .format_timestamp(None)
+        .init();
+    match run(cli.command) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+fn run(command: Command) -> Result<()> {
+    match command {
+        Command::Render(args) => render(args),
+        Command::Depth(args) => bail!(
+            "no depth model yet — pass --depth to render/view/reshade (cannot estimate depth for {} into {})",
+            args.photo.display(),
+            args.out.display()
+        ),
+        Command::Reshade(args) => reshade(args),
+        Command::View(args) => view(args),
+        Command::Weave(args) => weave(args),
+        Command::Boards => {
+            list_boards();
+            Ok(())
+        }
+    }
+}
+
+fn render(args: RenderArgs) -> Result<()> {
+    let board = pipeline::load_board(&args.board, args.calibration.as_deref())?;
+    let board_file = Path::new(&args.board)
+        .is_file()
+        .then(|| PathBuf::from(&args.board));
+    let opts = RenderOptions {
+        photo: args.scene.photo,
+        depth: args.scene.depth,
+        depth_kind: args.scene.depth_kind,
+        fov: args.scene.fov,
+        board,
+        board_file,
+        calibration: args.calibration,
+        focus: args.scene.focus,
+        depthiness: args.depthiness,
+        blend: args.blend.into(),
+        only: args.only,
+        sbs_pair: args.sbs_pair,
+        out_dir: args.out,
+    };
+    let record = pipeline::render(&opts, &IdentityReshader, &MeshWarp::default())?;
+    println!(
+        "{}: {} views, wrote {} files to {}",
+        opts.board.name(),
+        record.views.len(),
+        record.outputs.len(),
+        opts.out_dir.display()
+    );
+    Ok(())
+}
+
+fn load_scene(args: &SceneArgs) -> Result<Scene> {
+    Ok(Scene::load(
+        &args.photo,
+        &args.depth,
+        args.depth_kind,
+        args.fov,
+    )?)
+}
+
+fn reshade(args: SingleViewArgs) -> Result<()> {
+    output::FileFormat::require(&args.out, output::IMAGE_FORMATS)?;
+    let scene = load_scene(&args.scene)?;
+    let req = ViewRequest {
+        scene: &scene,
+        camera: args.camera,
+        focus: args.scene.focus,
+    };
+    let image = pipeline::reshade_photo(&req, &IdentityReshader)?;
+    pipeline::write_image(&args.out, &image)?;
+    Ok(())
+}
+
+fn view(args: ViewArgs) -> Result<()> {
+    let single = args.single;
+    output::FileFormat::require(&single.out, output::IMAGE_FORMATS)?;
+    let scene = load_scene(&single.scene)?;
+    let req = ViewRequest {
+        scene: &scene,
+        camera: single.camera,
+        focus: single.scene.focus,
+    };
+    let reshader =
+        (!args.no_reshade).then_some(&IdentityReshader as &dyn reshader::reshade::Reshader);
+    let image = pipeline::render_view(&req, reshader, &MeshWarp::default())?;
+    pipeline::write_image(&single.out, &image)?;
+    Ok(())
+}
+
+fn weave(args: WeaveArgs) -> Result<()> {
+    output::FileFormat::require(&args.out, &[output::FileFormat::Png])?;
+    let board = pipeline::load_board(&args.board, args.calibration.as_deref())?;
+    let panel = pipeline::weave_dir(&args.view_dir, &board, args.blend.into())?;
+    let bytes = output::encode_png(&args.out, &panel)?;
+    output::write_atomic(&args.out, &bytes)?;
+    Ok(())
+}
+
+fn list_boards() {
+    for name in Board::builtin_names() {
+        match Board::builtin(name) {
+            Ok(b) => {
+                let (w, h) = b.panel_size();
+                let (vw, vh) = b.view_size();
+                println!(
+                    "{name:<26} {w}x{h}, {} views of {vw}x{vh}, {}° cone — {}",
+                    b.views(),
+                    b.view_cone_deg(),
+                    b.description()
+                );
+            }
+            Err(e) => println!("{name:<26} (invalid: {e})"),
+        }
+    }
+}

@@ -1,0 +1,278 @@
+//! Loading the input photo: decoding with allocation limits, EXIF orientation and the
+//! horizontal field of view.
+
+use std::fs::File;
+use std::io::BufReader;
+use std::path::{Path, PathBuf};
+
+use image::imageops::FilterType;
+use image::{DynamicImage, ImageDecoder, ImageReader, Limits, Rgb32FImage, RgbImage};
+
+/// Horizontal field of view assumed when the photo carries no usable metadata.
+pub const DEFAULT_HFOV_DEG: f64 = 45.0;
+
+/// Larger photos are refused before their pixels are allocated: a phone photo is ~12k px
+/// on its long side at most, and a hostile header can claim 4 billion.
+pub const MAX_PHOTO_SIDE: u32 = 16_384;
+const MAX_DECODE_BYTES: u64 = 2 << 30;
+
+/// The diagonal of a 36×24 mm frame, which defines "35 mm equivalent" focal lengths.
+const FULL_FRAME_DIAGONAL_MM: f64 = 43.266_615;
+
+#[derive(Debug, thiserror::Error)]
+pub enum PhotoError {
+    #[error("cannot read photo {path}: {source}")]
+    Io {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error("cannot decode photo {path}: {source}")]
+    Decode {
+        path: PathBuf,
+        source: image::ImageError,
+    },
+    #[error("photo {path} is empty (0 pixels)")]
+    Empty { path: PathBuf },
+    #[error("field of view {0}° is outside (0°, 180°)")]
+    BadFov(f64),
+}
+
+/// RGB image whose values are sRGB-encoded (not linear) in [0, 1]: the colour space the
+/// reshading network is trained on, and the one PNG files store.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SrgbImage {
+    width: u32,
+    height: u32,
+    data: Vec<f32>,
+}
+
+impl SrgbImage {
+    pub fn new(width: u32, height: u32) -> Self {
+        Self {
+            width,
+            height,
+            data: vec![0.0; width as usize * height as usize * 3],
+        }
+    }
+
+    pub fn from_rgb8(image: &RgbImage) -> Self {
+        Self {
+            width: image.width(),
+            height: image.height(),
+            data: image
+                .as_raw()
+                .iter()
+                .map(|&v| f32::from(v) / 255.0)
+                .collect(),
+        }
+    }
+
+    pub fn from_rgb32f(image: Rgb32FImage) -> Self {
+        Self {
+            width: image.width(),
+            height: image.height(),
+            data: image.into_raw(),
+        }
+    }
+
+    pub fn to_rgb8(&self) -> RgbImage {
+        let bytes = self
+            .data
+            .iter()
+            .map(|&v| (v.clamp(0.0, 1.0) * 255.0).round() as u8)
+            .collect();
+        RgbImage::from_raw(self.width, self.height, bytes).expect("buffer matches size")
+    }
+
+    pub fn to_rgb32f(&self) -> Rgb32FImage {
+        Rgb32FImage::from_raw(self.width, self.height, self.data.clone())
+            .expect("buffer matches size")
+    }
+
+    pub fn width(&self) -> u32 {
+        self.width
+    }
+
+    pub fn height(&self) -> u32 {
+        self.height
+    }
+
+    pub fn data(&self) -> &[f32] {
+        &self.data
+    }
+
+    pub fn get(&self, x: u32, y: u32) -> [f32; 3] {
+        let i = self.index(x, y);
+        [self.data[i], self.data[i + 1], self.data[i + 2]]
+    }
+
+    pub fn put(&mut self, x: u32, y: u32, rgb: [f32; 3]) {
+        let i = self.index(x, y);
+        self.data[i..i + 3].copy_from_slice(&rgb);
+    }
+
+    /// Resamples with a filter whose support grows with the reduction, so that
+    /// downscaling averages areas instead of aliasing.
+    pub fn resized(&self, width: u32, height: u32) -> Self {
+        if (width, height) == (self.width, self.height) {
+            return self.clone();
+        }
+        let resized =
+            image::imageops::resize(&self.to_rgb32f(), width, height, FilterType::Triangle);
+        Self::from_rgb32f(resized)
+    }
+
+    fn index(&self, x: u32, y: u32) -> usize {
+        (y as usize * self.width as usize + x as usize) * 3
+    }
+}
+
+/// Where the horizontal field of view came from, reported in run.json.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum FovSource {
+    CommandLine,
+    #[serde(rename = "exif_35mm_focal_length")]
+    Exif35mmFocalLength,
+    Default,
+}
+
+#[derive(Clone, Debug)]
+pub struct Photo {
+    pub path: PathBuf,
+    pub image: SrgbImage,
+    pub hfov_deg: f64,
+    pub fov_source: FovSource,
+}
+
+impl Photo {
+    /// Loads a photo; `fov_override` (degrees) wins over the photo's metadata.
+    pub fn load(path: &Path, fov_override: Option<f64>) -> Result<Self, PhotoError> {
+        if let Some(fov) = fov_override {
+            check_fov(fov)?;
+        }
+        let image = SrgbImage::from_rgb8(&load_rgb8(path)?);
+        let (hfov_deg, fov_source) = match fov_override {
+            Some(fov) => (fov, FovSource::CommandLine),
+            None => match exif_hfov(path, image.width(), image.height()) {
+                Some(fov) => (fov, FovSource::Exif35mmFocalLength),
+                None => (DEFAULT_HFOV_DEG, FovSource::Default),
+            },
+        };
+        log::info!(
+            "photo {}: {}x{}, horizontal FOV {hfov_deg:.1}° ({fov_source:?})",
+            path.display(),
+            image.width(),
+            image.height()
+        );
+        Ok(Self {
+            path: path.into(),
+            image,
+            hfov_deg,
+            fov_source,
+        })
+    }
+}
+
+/// Decodes an 8-bit RGB image within the size limits, turned upright by its EXIF
+/// orientation.
+pub fn load_rgb8(path: &Path) -> Result<RgbImage, PhotoError> {
+    let (mut decoded, orientation) = decode(path)?;
+    decoded.apply_orientation(orientation);
+    if decoded.width() == 0 || decoded.height() == 0 {
+        return Err(PhotoError::Empty { path: path.into() });
+    }
+    Ok(decoded.to_rgb8())
+}
+
+fn check_fov(fov: f64) -> Result<(), PhotoError> {
+    if fov.is_finite() && fov > 0.0 && fov < 180.0 {
+        Ok(())
+    } else {
+        Err(PhotoError::BadFov(fov))
+    }
+}
+
+fn decode(path: &Path) -> Result<(DynamicImage, image::metadata::Orientation), PhotoError> {
+    let decode_err = |source| PhotoError::Decode {
+        path: path.into(),
+        source,
+    };
+    let mut reader = ImageReader::open(path)
+        .map_err(|source| PhotoError::Io {
+            path: path.into(),
+            source,
+        })?
+        .with_guessed_format()
+        .map_err(|source| PhotoError::Io {
+            path: path.into(),
+            source,
+        })?;
+    let mut limits = Limits::default();
+    limits.max_image_width = Some(MAX_PHOTO_SIDE);
+    limits.max_image_height = Some(MAX_PHOTO_SIDE);
+    limits.max_alloc = Some(MAX_DECODE_BYTES);
+    reader.limits(limits);
+    let mut decoder = reader.into_decoder().map_err(decode_err)?;
+    let orientation = decoder
+        .orientation()
+        .unwrap_or(image::metadata::Orientation::NoTransforms);
+    let image = DynamicImage::from_decoder(decoder).map_err(decode_err)?;
+    Ok((image, orientation))
+}
+
+/// Horizontal FOV from the EXIF 35 mm-equivalent focal length. The equivalence is
+/// defined on the diagonal, so the horizontal angle follows from the image's own aspect
+/// (portrait photos get the narrow angle).
+fn exif_hfov(path: &Path, width: u32, height: u32) -> Option<f64> {
+    let file = File::open(path).ok()?;
+    let exif = exif::Reader::new()
+        .read_from_container(&mut BufReader::new(file))
+        .ok()?;
+    let field = exif.get_field(exif::Tag::FocalLengthIn35mmFilm, exif::In::PRIMARY)?;
+    let focal_mm = f64::from(field.value.get_uint(0)?);
+    hfov_from_35mm_focal(focal_mm, width, height)
+}
+
+/// Horizontal FOV (degrees) of an image of `width`×`height` pixels taken with a lens of
+/// the given 35 mm-equivalent focal length; `None` for a zero (unknown) focal length.
+pub fn hfov_from_35mm_focal(focal_mm: f64, width: u32, height: u32) -> Option<f64> {
+    if focal_mm <= 0.0 || width == 0 || height == 0 {
+        return None;
+    }
+    let (w, h) = (f64::from(width), f64::from(height));
+    let half_diag_tan = FULL_FRAME_DIAGONAL_MM / (2.0 * focal_mm);
+    let half_width_tan = half_diag_tan * w / w.hypot(h);
+    Some(2.0 * half_width_tan.atan().to_degrees())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn full_frame_landscape_matches_classic_angles() {
+        // A 50 mm lens on a 36×24 frame covers 39.6° horizontally.
+        let fov = hfov_from_35mm_focal(50.0, 3600, 2400).unwrap();
+        assert!((fov - 39.6).abs() < 0.1, "{fov}");
+    }
+
+    #[test]
+    fn portrait_gets_narrower_horizontal_angle() {
+        let landscape = hfov_from_35mm_focal(28.0, 4032, 3024).unwrap();
+        let portrait = hfov_from_35mm_focal(28.0, 3024, 4032).unwrap();
+        assert!(portrait < landscape);
+        assert!((portrait - 49.7).abs() < 0.2, "{portrait}");
+    }
+
+    #[test]
+    fn unknown_focal_length_gives_none() {
+        assert_eq!(hfov_from_35mm_focal(0.0, 10, 10), None);
+    }
+
+    #[test]
+    fn rgb8_roundtrip_is_exact() {
+        let img = RgbImage::from_fn(5, 3, |x, y| image::Rgb([x as u8 * 50, y as u8 * 80, 7]));
+        assert_eq!(SrgbImage::from_rgb8(&img).to_rgb8(), img);
+    }
+}

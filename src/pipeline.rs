@@ -1,0 +1,476 @@
+//! The render flow, stage by stage: load → fit → reshade → relocate → weave → write.
+//! Every input is read and validated before anything is written, and all files of a run
+//! are staged and moved into place together.
+
+use std::path::{Path, PathBuf};
+
+use image::RgbImage;
+use interleave::{make_quilt, side_by_side, Blend, Board, BoardError, WeaveError, Weaver};
+
+use crate::depth::{DepthError, DepthKind, DepthMap, DepthReport};
+use crate::output::{self, OutputError, Staging};
+use crate::photo::{Photo, PhotoError, SrgbImage};
+use crate::record::{
+    BoardRecord, DepthRecord, FileRecord, Geometry, Inputs, PhotoRecord, RunRecord, Setting,
+    Timings, Versions, ViewRecord,
+};
+use crate::relocate::{RelocateError, Relocator};
+use crate::reshade::{ReshadeError, Reshader, TrainingFrame};
+use crate::views::{robust_focus, robust_range, Intrinsics, ViewCamera, ViewError, ViewRig};
+
+#[derive(Debug, thiserror::Error)]
+pub enum PipelineError {
+    #[error(transparent)]
+    Photo(#[from] PhotoError),
+    #[error(transparent)]
+    Depth(#[from] DepthError),
+    #[error(transparent)]
+    View(#[from] ViewError),
+    #[error(transparent)]
+    Relocate(#[from] RelocateError),
+    #[error(transparent)]
+    Reshade(#[from] ReshadeError),
+    #[error(transparent)]
+    Output(#[from] OutputError),
+    #[error(transparent)]
+    Board(#[from] BoardError),
+    #[error("weaving failed: {0}")]
+    Weave(#[from] WeaveError),
+    #[error("cannot read {path}: {source}")]
+    Io {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error("view directory {dir}: {detail}")]
+    ViewDir { dir: PathBuf, detail: String },
+    #[error("--sbs-pair {left},{right}: the board has views 0..{}", views - 1)]
+    SbsPair {
+        left: usize,
+        right: usize,
+        views: usize,
+    },
+}
+
+/// Which files `render` writes; run.json is always written.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum Product {
+    Views,
+    Quilt,
+    Panel,
+    Sbs,
+}
+
+/// A photo with its depth at the photo's resolution.
+pub struct Scene {
+    pub photo: Photo,
+    pub depth: DepthMap,
+    pub depth_path: PathBuf,
+    pub depth_report: DepthReport,
+}
+
+/// Photo and depth resampled for views of a given size, with their cameras.
+pub struct Fitted {
+    pub image: SrgbImage,
+    pub depth: DepthMap,
+    /// The camera that took `image`.
+    pub source: Intrinsics,
+    /// The unmoved camera at the output size (the photo scaled to cover it, centred).
+    pub reference: Intrinsics,
+}
+
+impl Scene {
+    pub fn load(
+        photo: &Path,
+        depth: &Path,
+        kind: DepthKind,
+        fov: Option<f64>,
+    ) -> Result<Self, PipelineError> {
+        let photo = Photo::load(photo, fov)?;
+        let (depth_map, depth_report) =
+            DepthMap::load(depth, kind, photo.image.width(), photo.image.height())?;
+        Ok(Self {
+            photo,
+            depth: depth_map,
+            depth_path: depth.into(),
+            depth_report,
+        })
+    }
+
+    pub fn focus(&self, requested: Option<f64>) -> (f64, Setting) {
+        match requested {
+            Some(f) => (f, Setting::CommandLine),
+            None => (robust_focus(&self.depth), Setting::RobustMiddleDepth),
+        }
+    }
+
+    /// Shrinks the photo when it has more pixels than views of `width`×`height` can
+    /// show (the mesh has one vertex per pixel); smaller photos are kept and magnified
+    /// by the rasteriser.
+    pub fn fitted(&self, width: u32, height: u32) -> Fitted {
+        let (pw, ph) = (self.photo.image.width(), self.photo.image.height());
+        let cover = (f64::from(width) / f64::from(pw)).max(f64::from(height) / f64::from(ph));
+        let (fw, fh) = if cover < 1.0 {
+            (
+                ((f64::from(pw) * cover).ceil() as u32).max(1),
+                ((f64::from(ph) * cover).ceil() as u32).max(1),
+            )
+        } else {
+            (pw, ph)
+        };
+        let source = Intrinsics::from_hfov(fw, fh, self.photo.hfov_deg);
+        Fitted {
+            image: self.photo.image.resized(fw, fh),
+            depth: self.depth.resized(fw as usize, fh as usize),
+            source,
+            reference: source.cover(width, height),
+        }
+    }
+
+    fn inputs(&self) -> Result<Inputs, PipelineError> {
+        let record = |path: &Path| {
+            FileRecord::of(path).map_err(|source| PipelineError::Io {
+                path: path.into(),
+                source,
+            })
+        };
+        Ok(Inputs {
+            photo: PhotoRecord {
+                file: record(&self.photo.path)?,
+                size: [self.photo.image.width(), self.photo.image.height()],
+                hfov_deg: self.photo.hfov_deg,
+                fov_source: self.photo.fov_source,
+            },
+            depth: DepthRecord {
+                file: record(&self.depth_path)?,
+                report: self.depth_report.clone(),
+            },
+            board_file: None,
+            calibration: None,
+        })
+    }
+}
+
+/// A board by built-in name or file, with an optional per-unit calibration applied.
+pub fn load_board(name_or_path: &str, calibration: Option<&Path>) -> Result<Board, BoardError> {
+    let mut board = Board::resolve(name_or_path)?;
+    if let Some(cal) = calibration {
+        board.apply_calibration_file(cal)?;
+    }
+    Ok(board)
+}
+
+pub struct RenderOptions {
+    pub photo: PathBuf,
+    pub depth: PathBuf,
+    pub depth_kind: DepthKind,
+    pub fov: Option<f64>,
+    pub board: Board,
+    pub board_file: Option<PathBuf>,
+    pub calibration: Option<PathBuf>,
+    pub focus: Option<f64>,
+    /// `None`: fit the parallax budget (see [`ViewRig::fitting_depthiness`]).
+    pub depthiness: Option<f64>,
+    pub blend: Blend,
+    /// Empty means everything.
+    pub only: Vec<Product>,
+    pub sbs_pair: Option<(usize, usize)>,
+    pub out_dir: PathBuf,
+}
+
+impl RenderOptions {
+    fn wants(&self, product: Product) -> bool {
+        self.only.is_empty() || self.only.contains(&product)
+    }
+
+    fn sbs_pair(&self) -> Result<(usize, usize), PipelineError> {
+        let n = self.board.views();
+        let (left, right) = self.sbs_pair.unwrap_or((0, n - 1));
+        if left >= n || right >= n {
+            return Err(PipelineError::SbsPair {
+                left,
+                right,
+                views: n,
+            });
+        }
+        Ok((left, right))
+    }
+}
+
+/// Renders every view of the board and writes the requested products plus run.json
+/// into `opts.out_dir`.
+pub fn render(
+    opts: &RenderOptions,
+    reshader: &dyn Reshader,
+    relocator: &dyn Relocator,
+) -> Result<RunRecord, PipelineError> {
+    let mut t = Timings::default();
+    let sbs_pair = opts.sbs_pair()?;
+    let board = &opts.board;
+    let scene = t.time("load", || {
+        Scene::load(&opts.photo, &opts.depth, opts.depth_kind, opts.fov)
+    })?;
+    let (focus, focus_source) = scene.focus(opts.focus);
+    let (vw, vh) = board.view_size();
+    let fitted = t.time("fit", || scene.fitted(vw, vh));
+    let cone = f64::from(board.view_cone_deg());
+    let (depthiness, depthiness_source) = match opts.depthiness {
+        Some(d) => (d, Setting::CommandLine),
+        None => (
+            ViewRig::fitting_depthiness(cone, focus, robust_range(&scene.depth), &fitted.reference),
+            Setting::ParallaxBudget,
+        ),
+    };
+    let rig = ViewRig::new(board.views(), cone, focus, depthiness)?;
+    let cameras = rig.cameras(&fitted.reference);
+    let frame = TrainingFrame::for_focus(focus);
+    let views = render_views(&fitted, &cameras, frame, reshader, relocator, &mut t)?;
+
+    let mut staging = Staging::new(&opts.out_dir)?;
+    write_products(opts, &views, sbs_pair, &mut staging, &mut t)?;
+    let mut inputs = scene.inputs()?;
+    inputs.board_file = file_record(opts.board_file.as_deref())?;
+    inputs.calibration = file_record(opts.calibration.as_deref())?;
+    let record = RunRecord {
+        command: "render".into(),
+        inputs,
+        board: Some(board_record(board)),
+        geometry: Geometry {
+            units: "depth map units",
+            focus,
+            focus_source,
+            depthiness_source,
+            rig: Some(rig),
+            training_scale: frame.scale,
+        },
+        views: view_records(&cameras, &fitted.reference),
+        reshade: reshader.description(),
+        relocate: relocator.description(),
+        blend: Some(format!("{:?}", opts.blend).to_lowercase()),
+        outputs: Vec::new(),
+        timings_ms: t,
+        versions: Versions::default(),
+    };
+    commit_with_record(staging, record)
+}
+
+fn render_views(
+    fitted: &Fitted,
+    cameras: &[ViewCamera],
+    frame: TrainingFrame,
+    reshader: &dyn Reshader,
+    relocator: &dyn Relocator,
+    t: &mut Timings,
+) -> Result<Vec<RgbImage>, PipelineError> {
+    let training_depth = frame.depth(&fitted.depth);
+    let prepared = t.time("reshade_prepare", || {
+        reshader.prepare(&fitted.image, &training_depth)
+    })?;
+    let mut views = Vec::with_capacity(cameras.len());
+    for camera in cameras {
+        let colours = t.time("reshade", || prepared.reshade(frame.camera(camera.centre)))?;
+        let view = t.time("relocate", || {
+            relocator.render(&colours, &fitted.depth, &fitted.source, camera)
+        })?;
+        views.push(view.to_rgb8());
+    }
+    log::info!("rendered {} views", views.len());
+    Ok(views)
+}
+
+fn write_products(
+    opts: &RenderOptions,
+    views: &[RgbImage],
+    (left, right): (usize, usize),
+    staging: &mut Staging,
+    t: &mut Timings,
+) -> Result<(), PipelineError> {
+    let board = &opts.board;
+    let mut stage_png = |rel: &str, image: &RgbImage, t: &mut Timings| {
+        let bytes = t.time("encode", || {
+            output::encode_png(&staging.final_path(rel), image)
+        })?;
+        t.time("write", || staging.write(rel, &bytes))
+    };
+    if opts.wants(Product::Views) {
+        for (i, view) in views.iter().enumerate() {
+            stage_png(&format!("views/{}", output::view_file_name(i)), view, t)?;
+        }
+    }
+    if opts.wants(Product::Quilt) {
+        let (cols, rows) = board.quilt_grid();
+        let quilt = t.time("quilt", || make_quilt(views, cols, rows))?;
+        stage_png(&board.quilt_file_name(), &quilt, t)?;
+    }
+    if opts.wants(Product::Panel) {
+        let panel = weave(board, views, opts.blend, t)?;
+        stage_png("panel.png", &panel, t)?;
+    }
+    if opts.wants(Product::Sbs) {
+        let sbs = side_by_side(&views[left], &views[right]);
+        stage_png("sbs.png", &sbs, t)?;
+    }
+    Ok(())
+}
+
+fn weave(
+    board: &Board,
+    views: &[RgbImage],
+    blend: Blend,
+    t: &mut Timings,
+) -> Result<RgbImage, PipelineError> {
+    let (w, h) = views
+        .first()
+        .map(RgbImage::dimensions)
+        .ok_or(WeaveError::ViewCount {
+            expected: board.views(),
+            got: 0,
+        })?;
+    let weaver = t.time("weave_table", || Weaver::new(board, w, h, blend));
+    Ok(t.time("weave", || weaver.weave(views))?)
+}
+
+fn commit_with_record(
+    mut staging: Staging,
+    mut record: RunRecord,
+) -> Result<RunRecord, PipelineError> {
+    record.outputs = staging_outputs(&staging);
+    record.outputs.push("run.json".into());
+    let json = serde_json::to_vec_pretty(&record).expect("run record serialises");
+    staging.write("run.json", &json)?;
+    staging.commit()?;
+    Ok(record)
+}
+
+fn staging_outputs(staging: &Staging) -> Vec<String> {
+    staging
+        .files()
+        .iter()
+        .map(|p| p.display().to_string())
+        .collect()
+}
+
+fn file_record(path: Option<&Path>) -> Result<Option<FileRecord>, PipelineError> {
+    path.map(|p| {
+        FileRecord::of(p).map_err(|source| PipelineError::Io {
+            path: p.into(),
+            source,
+        })
+    })
+    .transpose()
+}
+
+fn board_record(board: &Board) -> BoardRecord {
+    let (pw, ph) = board.panel_size();
+    let (qc, qr) = board.quilt_grid();
+    let (vw, vh) = board.view_size();
+    BoardRecord {
+        name: board.name().into(),
+        origin: board.origin().into(),
+        panel_size: [pw, ph],
+        views: board.views(),
+        quilt_grid: [qc, qr],
+        view_size: [vw, vh],
+        view_cone_deg: board.view_cone_deg(),
+    }
+}
+
+fn view_records(cameras: &[ViewCamera], reference: &Intrinsics) -> Vec<ViewRecord> {
+    cameras
+        .iter()
+        .enumerate()
+        .map(|(index, cam)| ViewRecord {
+            index,
+            camera: cam.centre,
+            principal_shift_px: [
+                cam.intrinsics.cx - reference.cx,
+                cam.intrinsics.cy - reference.cy,
+            ],
+        })
+        .collect()
+}
+
+/// Settings shared by the single-view stage commands.
+pub struct ViewRequest<'a> {
+    pub scene: &'a Scene,
+    pub camera: [f64; 3],
+    pub focus: Option<f64>,
+}
+
+/// The photo reshaded for `camera`, still in the input camera's frame.
+pub fn reshade_photo(
+    req: &ViewRequest,
+    reshader: &dyn Reshader,
+) -> Result<SrgbImage, PipelineError> {
+    let (focus, _) = req.scene.focus(req.focus);
+    let frame = TrainingFrame::for_focus(focus);
+    let training_depth = frame.depth(&req.scene.depth);
+    let prepared = reshader.prepare(&req.scene.photo.image, &training_depth)?;
+    Ok(prepared.reshade(frame.camera(req.camera))?)
+}
+
+/// The novel view from `camera` at the photo's resolution, with the zero-parallax plane
+/// as in `render`, so that it matches the render's view for the same camera offset.
+pub fn render_view(
+    req: &ViewRequest,
+    reshader: Option<&dyn Reshader>,
+    relocator: &dyn Relocator,
+) -> Result<SrgbImage, PipelineError> {
+    let scene = req.scene;
+    let (focus, _) = scene.focus(req.focus);
+    let source = Intrinsics::from_hfov(
+        scene.photo.image.width(),
+        scene.photo.image.height(),
+        scene.photo.hfov_deg,
+    );
+    let camera = ViewCamera::off_axis(&source, req.camera, focus)?;
+    let colours = match reshader {
+        Some(r) => reshade_photo(req, r)?,
+        None => scene.photo.image.clone(),
+    };
+    Ok(relocator.render(&colours, &scene.depth, &source, &camera)?)
+}
+
+/// Writes an image to `path` atomically, as PNG, EXR or npy by extension.
+pub fn write_image(path: &Path, image: &SrgbImage) -> Result<(), PipelineError> {
+    let format = output::FileFormat::require(path, output::IMAGE_FORMATS)?;
+    let bytes = output::encode_image(path, image, format)?;
+    Ok(output::write_atomic(path, &bytes)?)
+}
+
+/// Weaves the `view_NN.png` files of `dir` (exactly the board's view count, numbered
+/// from 0 without gaps) into a panel frame.
+pub fn weave_dir(dir: &Path, board: &Board, blend: Blend) -> Result<RgbImage, PipelineError> {
+    let views = read_view_dir(dir, board.views())?;
+    let mut t = Timings::default();
+    weave(board, &views, blend, &mut t)
+}
+
+fn read_view_dir(dir: &Path, expected: usize) -> Result<Vec<RgbImage>, PipelineError> {
+    let dir_err = |detail: String| PipelineError::ViewDir {
+        dir: dir.into(),
+        detail,
+    };
+    let entries = std::fs::read_dir(dir).map_err(|e| dir_err(e.to_string()))?;
+    let mut indexed: Vec<(usize, PathBuf)> = entries
+        .flatten()
+        .filter_map(|e| {
+            let name = e.file_name().to_string_lossy().into_owned();
+            let index = output::view_index(&name).filter(|_| name.ends_with(".png"))?;
+            Some((index, e.path()))
+        })
+        .collect();
+    indexed.sort();
+    if indexed.len() != expected {
+        return Err(dir_err(format!(
+            "found {} view_NN.png files, the board has {expected} views",
+            indexed.len()
+        )));
+    }
+    if let Some(k) = indexed.iter().enumerate().position(|(k, (i, _))| *i != k) {
+        return Err(dir_err(format!("view_{k:02}.png is missing")));
+    }
+    indexed
+        .iter()
+        .map(|(_, path)| Ok(crate::photo::load_rgb8(path)?))
+        .collect()
+}

@@ -1,0 +1,414 @@
+//! Relocation: rendering the photo's colours from another camera.
+//!
+//! [`MeshWarp`] is the first implementation: the depth map becomes a triangle mesh with a
+//! vertex per pixel centre; triangles that the view would stretch across a depth edge are
+//! cut, the rest are rasterised with a z-buffer, and the holes left behind
+//! (disocclusions) take the colour of the farthest rendered pixel around them, so
+//! foreground is never smeared over what it uncovers.
+
+use crate::depth::DepthMap;
+use crate::photo::SrgbImage;
+use crate::views::{Intrinsics, ViewCamera};
+
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum RelocateError {
+    #[error(
+        "colours ({colour_w}x{colour_h}), depth ({depth_w}x{depth_h}) and camera \
+         ({camera_w}x{camera_h}) sizes differ"
+    )]
+    SizeMismatch {
+        colour_w: u32,
+        colour_h: u32,
+        depth_w: usize,
+        depth_h: usize,
+        camera_w: u32,
+        camera_h: u32,
+    },
+}
+
+/// Renders the view seen by `view` of a photo whose colours and depth were taken by the
+/// `source` camera. Colours may already be reshaded for this view.
+pub trait Relocator {
+    /// What run.json records under "relocate".
+    fn description(&self) -> String;
+
+    fn render(
+        &self,
+        colours: &SrgbImage,
+        depth: &DepthMap,
+        source: &Intrinsics,
+        view: &ViewCamera,
+    ) -> Result<SrgbImage, RelocateError>;
+}
+
+/// Depth-mesh rasterisation with background-side hole filling.
+#[derive(Clone, Copy, Debug)]
+pub struct MeshWarp {
+    /// A triangle is cut when its corners' parallax differs by more than this many
+    /// view pixels, i.e. when the view would stretch it across a depth edge.
+    pub cut_px: f64,
+}
+
+impl Default for MeshWarp {
+    fn default() -> Self {
+        Self { cut_px: 1.0 }
+    }
+}
+
+/// A mesh vertex in view pixels, with its view-space depth.
+#[derive(Clone, Copy)]
+struct Vertex {
+    u: f64,
+    v: f64,
+    inv_z: f64,
+    valid: bool,
+}
+
+/// The rendered view before hole filling: depth 0 marks an uncovered pixel.
+struct Frame {
+    width: usize,
+    height: usize,
+    colour: Vec<[f32; 3]>,
+    depth: Vec<f32>,
+}
+
+impl Relocator for MeshWarp {
+    fn description(&self) -> String {
+        format!(
+            "depth-mesh rasterisation, cut at {} px parallax step, background-side hole fill",
+            self.cut_px
+        )
+    }
+
+    fn render(
+        &self,
+        colours: &SrgbImage,
+        depth: &DepthMap,
+        source: &Intrinsics,
+        view: &ViewCamera,
+    ) -> Result<SrgbImage, RelocateError> {
+        check_sizes(colours, depth, source)?;
+        let vertices = project_vertices(depth, source, view);
+        let mut frame = Frame::new(
+            view.intrinsics.width as usize,
+            view.intrinsics.height as usize,
+        );
+        let parallax_scale = view.intrinsics.fx.max(view.intrinsics.fy)
+            * view.centre.iter().map(|c| c * c).sum::<f64>().sqrt();
+        let (w, h) = (depth.width(), depth.height());
+        for y in 0..h.saturating_sub(1) {
+            for x in 0..w.saturating_sub(1) {
+                let (a, b, c, d) = (
+                    y * w + x,
+                    y * w + x + 1,
+                    (y + 1) * w + x,
+                    (y + 1) * w + x + 1,
+                );
+                for tri in [[a, b, c], [b, d, c]] {
+                    let source_inv_z = tri.map(|i| 1.0 / f64::from(depth.data()[i]));
+                    let spread = source_inv_z.iter().copied().fold(f64::MIN, f64::max)
+                        - source_inv_z.iter().copied().fold(f64::MAX, f64::min);
+                    if spread * parallax_scale > self.cut_px {
+                        continue;
+                    }
+                    let corners = tri.map(|i| vertices[i]);
+                    if corners.iter().all(|v| v.valid) {
+                        let tri_colours = tri.map(|i| pixel(colours, i, w));
+                        frame.rasterise(corners, tri_colours);
+                    }
+                }
+            }
+        }
+        let horizontal = view.centre[0].abs() >= view.centre[1].abs();
+        Ok(frame.fill_holes_from_background(horizontal))
+    }
+}
+
+fn check_sizes(
+    colours: &SrgbImage,
+    depth: &DepthMap,
+    source: &Intrinsics,
+) -> Result<(), RelocateError> {
+    let c = (colours.width() as usize, colours.height() as usize);
+    let d = (depth.width(), depth.height());
+    let k = (source.width as usize, source.height as usize);
+    if c != d || c != k {
+        return Err(RelocateError::SizeMismatch {
+            colour_w: colours.width(),
+            colour_h: colours.height(),
+            depth_w: depth.width(),
+            depth_h: depth.height(),
+            camera_w: source.width,
+            camera_h: source.height,
+        });
+    }
+    Ok(())
+}
+
+fn pixel(image: &SrgbImage, index: usize, width: usize) -> [f32; 3] {
+    image.get((index % width) as u32, (index / width) as u32)
+}
+
+fn project_vertices(depth: &DepthMap, source: &Intrinsics, view: &ViewCamera) -> Vec<Vertex> {
+    let w = depth.width();
+    depth
+        .data()
+        .iter()
+        .enumerate()
+        .map(|(i, &z)| {
+            let (u, v) = ((i % w) as f64 + 0.5, (i / w) as f64 + 0.5);
+            let p = source.unproject(u, v, f64::from(z));
+            match view.project(p) {
+                Some(([u, v], z)) => Vertex {
+                    u,
+                    v,
+                    inv_z: 1.0 / z,
+                    valid: true,
+                },
+                None => Vertex {
+                    u: 0.0,
+                    v: 0.0,
+                    inv_z: 0.0,
+                    valid: false,
+                },
+            }
+        })
+        .collect()
+}
+
+impl Frame {
+    fn new(width: usize, height: usize) -> Self {
+        Self {
+            width,
+            height,
+            colour: vec![[0.0; 3]; width * height],
+            depth: vec![0.0; width * height],
+        }
+    }
+
+    /// Fills the pixel centres inside the triangle (edges inclusive, so that pixels on a
+    /// shared edge or at the mesh border are not lost) where it is nearer than what is
+    /// there. 1/z is affine in screen space, so it is interpolated linearly.
+    fn rasterise(&mut self, p: [Vertex; 3], colours: [[f32; 3]; 3]) {
+        let area = (p[1].u - p[0].u) * (p[2].v - p[0].v) - (p[2].u - p[0].u) * (p[1].v - p[0].v);
+        if area.abs() < 1e-12 {
+            return;
+        }
+        let min_u = p.iter().map(|v| v.u).fold(f64::MAX, f64::min);
+        let max_u = p.iter().map(|v| v.u).fold(f64::MIN, f64::max);
+        let min_v = p.iter().map(|v| v.v).fold(f64::MAX, f64::min);
+        let max_v = p.iter().map(|v| v.v).fold(f64::MIN, f64::max);
+        let x0 = (min_u - 0.5).ceil().max(0.0) as usize;
+        let y0 = (min_v - 0.5).ceil().max(0.0) as usize;
+        let x1 = ((max_u - 0.5).floor() + 1.0).clamp(0.0, self.width as f64) as usize;
+        let y1 = ((max_v - 0.5).floor() + 1.0).clamp(0.0, self.height as f64) as usize;
+        const EPS: f64 = 1e-7;
+        for y in y0..y1 {
+            let pv = y as f64 + 0.5;
+            for x in x0..x1 {
+                let pu = x as f64 + 0.5;
+                let w0 = ((p[1].u - pu) * (p[2].v - pv) - (p[2].u - pu) * (p[1].v - pv)) / area;
+                let w1 = ((p[2].u - pu) * (p[0].v - pv) - (p[0].u - pu) * (p[2].v - pv)) / area;
+                let w2 = 1.0 - w0 - w1;
+                if w0 < -EPS || w1 < -EPS || w2 < -EPS {
+                    continue;
+                }
+                let inv_z = w0 * p[0].inv_z + w1 * p[1].inv_z + w2 * p[2].inv_z;
+                let i = y * self.width + x;
+                let z = (1.0 / inv_z) as f32;
+                if self.depth[i] == 0.0 || z < self.depth[i] {
+                    self.depth[i] = z;
+                    self.colour[i] = std::array::from_fn(|c| {
+                        (w0 as f32) * colours[0][c]
+                            + (w1 as f32) * colours[1][c]
+                            + (w2 as f32) * colours[2][c]
+                    });
+                }
+            }
+        }
+    }
+
+    /// Each uncovered pixel takes the colour of the farther of the nearest covered pixels
+    /// on either side of it along the baseline (`horizontal` or vertical): disocclusions
+    /// open between a foreground edge and the background along that line. Only holes
+    /// with nothing on that line look across it.
+    fn fill_holes_from_background(self, horizontal: bool) -> SrgbImage {
+        let (w, h) = (self.width, self.height);
+        let along_rows = self.nearest_covered(true);
+        let along_cols = self.nearest_covered(false);
+        let (primary, secondary) = if horizontal {
+            (&along_rows, &along_cols)
+        } else {
+            (&along_cols, &along_rows)
+        };
+        let mut out = SrgbImage::new(w as u32, h as u32);
+        for i in 0..w * h {
+            let source = if self.depth[i] > 0.0 {
+                Some(i)
+            } else {
+                self.farthest(primary[i])
+                    .or_else(|| self.farthest(secondary[i]))
+            };
+            if let Some(s) = source {
+                out.put((i % w) as u32, (i / w) as u32, self.colour[s]);
+            }
+        }
+        out
+    }
+
+    fn farthest(&self, pair: [Option<usize>; 2]) -> Option<usize> {
+        pair.into_iter()
+            .flatten()
+            .max_by(|&a, &b| self.depth[a].total_cmp(&self.depth[b]))
+    }
+
+    /// For every pixel, the nearest covered pixel before and after it along its row
+    /// (`rows`) or column.
+    fn nearest_covered(&self, rows: bool) -> Vec<[Option<usize>; 2]> {
+        let (w, h) = (self.width, self.height);
+        let (lines, len) = if rows { (h, w) } else { (w, h) };
+        let index = |line: usize, k: usize| if rows { line * w + k } else { k * w + line };
+        let mut out = vec![[None, None]; w * h];
+        for line in 0..lines {
+            let mut last = None;
+            for k in 0..len {
+                let i = index(line, k);
+                if self.depth[i] > 0.0 {
+                    last = Some(i);
+                }
+                out[i][0] = last;
+            }
+            last = None;
+            for k in (0..len).rev() {
+                let i = index(line, k);
+                if self.depth[i] > 0.0 {
+                    last = Some(i);
+                }
+                out[i][1] = last;
+            }
+        }
+        out
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const W: u32 = 48;
+    const H: u32 = 32;
+    const FOCUS: f64 = 2.0;
+
+    fn camera() -> Intrinsics {
+        Intrinsics::from_hfov(W, H, 60.0)
+    }
+
+    fn textured() -> SrgbImage {
+        let mut img = SrgbImage::new(W, H);
+        for y in 0..H {
+            for x in 0..W {
+                img.put(
+                    x,
+                    y,
+                    [
+                        x as f32 / W as f32,
+                        y as f32 / H as f32,
+                        ((x * 7 + y * 3) % 5) as f32 / 4.0,
+                    ],
+                );
+            }
+        }
+        img
+    }
+
+    fn view(tx: f64) -> ViewCamera {
+        ViewCamera::off_axis(&camera(), [tx, 0.0, 0.0], FOCUS).unwrap()
+    }
+
+    const RED: [f32; 3] = [1.0, 0.0, 0.0];
+    const BLUE: [f32; 3] = [0.0, 0.0, 1.0];
+
+    /// A red square at depth 1 in front of a blue wall at depth 4.
+    fn square_scene() -> (SrgbImage, DepthMap) {
+        let mut img = SrgbImage::new(W, H);
+        let mut depth = vec![4.0f32; (W * H) as usize];
+        for y in 0..H {
+            for x in 0..W {
+                let inside = (18..30).contains(&x) && (10..22).contains(&y);
+                img.put(x, y, if inside { RED } else { BLUE });
+                if inside {
+                    depth[(y * W + x) as usize] = 1.0;
+                }
+            }
+        }
+        (img, DepthMap::new(W as usize, H as usize, depth))
+    }
+
+    fn red_columns(img: &SrgbImage, y: u32) -> Vec<u32> {
+        (0..W).filter(|&x| img.get(x, y) == RED).collect()
+    }
+
+    #[test]
+    fn plane_at_focus_is_unchanged_in_every_view() {
+        let img = textured();
+        let depth = DepthMap::new(W as usize, H as usize, vec![FOCUS as f32; (W * H) as usize]);
+        for tx in [-0.3, -0.05, 0.0, 0.2] {
+            let out = MeshWarp::default()
+                .render(&img, &depth, &camera(), &view(tx))
+                .unwrap();
+            for (a, b) in out.data().iter().zip(img.data()) {
+                assert!((a - b).abs() < 1e-5, "tx={tx}: {a} vs {b}");
+            }
+        }
+    }
+
+    #[test]
+    fn near_square_moves_against_the_camera() {
+        let (img, depth) = square_scene();
+        let before = red_columns(&img, 16);
+        let right = MeshWarp::default()
+            .render(&img, &depth, &camera(), &view(0.1))
+            .unwrap();
+        let left = MeshWarp::default()
+            .render(&img, &depth, &camera(), &view(-0.1))
+            .unwrap();
+        let (r, l) = (red_columns(&right, 16), red_columns(&left, 16));
+        // Parallax of a point at depth 1 with the plane at 2: f · tx · (1/1 − 1/2).
+        let shift = camera().fx * 0.1 * 0.5;
+        assert!(shift > 2.0);
+        let mean = |v: &[u32]| v.iter().sum::<u32>() as f64 / v.len() as f64;
+        assert!((mean(&r) - (mean(&before) - shift)).abs() < 1.0, "{r:?}");
+        assert!((mean(&l) - (mean(&before) + shift)).abs() < 1.0, "{l:?}");
+        // The mesh spans pixel centres, so a cut-out object may lose up to one pixel.
+        assert!(
+            (before.len() - 1..=before.len()).contains(&r.len()),
+            "{r:?}"
+        );
+    }
+
+    #[test]
+    fn disocclusions_are_filled_with_background() {
+        let (img, depth) = square_scene();
+        let out = MeshWarp::default()
+            .render(&img, &depth, &camera(), &view(0.15))
+            .unwrap();
+        let reds = red_columns(&out, 16);
+        let right_edge = *reds.last().unwrap();
+        // The square moved left: everything right of it, including what it covered, is wall.
+        assert!(right_edge < 29);
+        for x in right_edge + 1..W {
+            assert_eq!(out.get(x, 16), BLUE, "x={x}");
+        }
+        // No colour between red and blue: the edge triangles were cut, not stretched.
+        assert!(out.data().chunks(3).all(|p| p == RED || p == BLUE));
+    }
+
+    #[test]
+    fn mismatched_sizes_are_an_error() {
+        let depth = DepthMap::new(4, 4, vec![1.0; 16]);
+        let err = MeshWarp::default()
+            .render(&SrgbImage::new(4, 3), &depth, &camera(), &view(0.0))
+            .unwrap_err();
+        assert!(matches!(err, RelocateError::SizeMismatch { .. }));
+    }
+}

@@ -115,10 +115,10 @@ struct SceneArgs {
     #[arg(long, value_enum, default_value_t = DepthKind::Depth)]
     depth_kind: DepthKind,
     /// Horizontal field of view in degrees [default: from EXIF 35 mm focal length, else 45].
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     fov: Option<f64>,
     /// Depth of the zero-parallax plane, in depth-map units [default: robust middle depth].
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     focus: Option<f64>,
 }
 
@@ -135,7 +135,7 @@ struct RenderArgs {
     /// Scales the camera baseline: 1 spans the board's view cone, 0 is flat [default: the
     /// largest value (at most 1) that keeps the outermost views' parallax within 3% of the
     /// view width].
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     depthiness: Option<f64>,
     /// Subpixels between two views' centres: the nearest view, or a linear mix.
     #[arg(long, value_enum, default_value_t = BlendArg::Nearest)]

@@ -1,0 +1,318 @@
+//! Every bad input gives a non-zero exit, a message naming the file and the problem, and
+//! leaves no output behind.
+
+mod spine_support;
+
+use std::path::Path;
+
+use spine_support::*;
+
+struct Case {
+    dir: tempfile::TempDir,
+    photo: String,
+    depth: String,
+}
+
+impl Case {
+    fn new() -> Self {
+        let dir = tempfile::tempdir().unwrap();
+        let (photo, depth) = write_scene(dir.path());
+        Self { dir, photo, depth }
+    }
+
+    fn path(&self, name: &str) -> String {
+        self.dir.path().join(name).display().to_string()
+    }
+
+    fn out(&self) -> String {
+        self.path("out")
+    }
+
+    fn render(&self, photo: &str, depth: &str, extra: &[&str]) -> std::process::Output {
+        let board = tiny_board();
+        let out = self.out();
+        let mut args = vec![
+            "render", photo, "--depth", depth, "--board", &board, "--out", &out,
+        ];
+        args.extend_from_slice(extra);
+        run(&args)
+    }
+
+    /// The run failed, said `needles` on stderr, and the directory holds only the inputs.
+    fn assert_failed_cleanly(&self, result: &std::process::Output, needles: &[&str]) {
+        let err = stderr(result);
+        assert_eq!(result.status.code(), Some(1), "stderr: {err}");
+        assert!(err.starts_with("error: "), "{err}");
+        for needle in needles {
+            assert!(err.contains(needle), "expected {needle:?} in: {err}");
+        }
+        let inputs = ["bad", "depth.npy", "photo.png"];
+        let left: Vec<String> = entries(self.dir.path())
+            .into_iter()
+            .filter(|name| !inputs.iter().any(|i| name.starts_with(i)))
+            .collect();
+        assert!(left.is_empty(), "left behind: {left:?}");
+    }
+}
+
+#[test]
+fn corrupt_photo() {
+    let case = Case::new();
+    let bad = case.path("bad.jpg");
+    std::fs::write(&bad, b"\xff\xd8\xff\xe0 not really a jpeg").unwrap();
+    let result = case.render(&bad, &case.depth, &[]);
+    case.assert_failed_cleanly(&result, &["bad.jpg", "decode"]);
+}
+
+#[test]
+fn missing_photo() {
+    let case = Case::new();
+    let missing = case.path("bad-missing.png");
+    let result = case.render(&missing, &case.depth, &[]);
+    case.assert_failed_cleanly(&result, &["bad-missing.png", "cannot read photo"]);
+}
+
+#[test]
+fn depth_with_wrong_aspect() {
+    let case = Case::new();
+    let bad = case.path("bad-aspect.npy");
+    let depth: Vec<f32> = (0..24 * 16).map(|i| 2.0 + (i % 16) as f32 * 0.1).collect();
+    write_npy(Path::new(&bad), 24, 16, &depth);
+    let result = case.render(&case.photo, &bad, &[]);
+    case.assert_failed_cleanly(&result, &["bad-aspect.npy", "16x24", "24x16", "aspect"]);
+}
+
+#[test]
+fn depth_of_other_size_but_same_aspect_is_resized() {
+    let case = Case::new();
+    let half = case.path("bad-half.npy");
+    let depth: Vec<f32> = (0..12 * 8).map(|i| 2.0 + (i % 12) as f32 * 0.1).collect();
+    write_npy(Path::new(&half), 8, 12, &depth);
+    let board = tiny_board();
+    let out = case.out();
+    let result = run(&[
+        "-v",
+        "render",
+        &case.photo,
+        "--depth",
+        &half,
+        "--board",
+        &board,
+        "--out",
+        &out,
+        "--only",
+        "panel",
+    ]);
+    assert!(result.status.success(), "{}", stderr(&result));
+    assert!(stderr(&result).contains("resizing to the photo's 24x16"));
+    let run: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(Path::new(&out).join("run.json")).unwrap()).unwrap();
+    assert_eq!(
+        run["inputs"]["depth"]["resized_to"],
+        serde_json::json!([24, 16])
+    );
+}
+
+#[test]
+fn depth_with_nan() {
+    let case = Case::new();
+    let bad = case.path("bad-nan.npy");
+    let mut depth = scene_depth();
+    depth[5 * 24 + 3] = f32::NAN;
+    write_npy(Path::new(&bad), 16, 24, &depth);
+    let result = case.render(&case.photo, &bad, &[]);
+    case.assert_failed_cleanly(&result, &["bad-nan.npy", "1 NaN", "x=3, y=5"]);
+}
+
+#[test]
+fn constant_depth() {
+    let case = Case::new();
+    let bad = case.path("bad-flat.npy");
+    write_npy(Path::new(&bad), 16, 24, &vec![3.0; 16 * 24]);
+    let result = case.render(&case.photo, &bad, &["--depth-kind", "disparity"]);
+    case.assert_failed_cleanly(&result, &["bad-flat.npy", "all values equal"]);
+}
+
+#[test]
+fn negative_depth_suggests_disparity() {
+    let case = Case::new();
+    let bad = case.path("bad-neg.npy");
+    let depth: Vec<f32> = scene_depth().iter().map(|d| d - 2.0).collect();
+    write_npy(Path::new(&bad), 16, 24, &depth);
+    let result = case.render(&case.photo, &bad, &[]);
+    case.assert_failed_cleanly(&result, &["bad-neg.npy", "<= 0", "--depth-kind disparity"]);
+}
+
+#[test]
+fn corrupt_npy_header() {
+    let case = Case::new();
+    let bad = case.path("bad-header.npy");
+    let mut bytes = b"\x93NUMPY\x01\x00".to_vec();
+    let header = b"{'descr': '<f4', 'fortran_order': False, 'shape': (16, 24), 'evil': 1}\n";
+    bytes.extend_from_slice(&(header.len() as u16).to_le_bytes());
+    bytes.extend_from_slice(header);
+    let result = case.render(&case.photo, &bad_file(&bad, &bytes), &[]);
+    case.assert_failed_cleanly(&result, &["bad-header.npy", "unknown key 'evil'"]);
+}
+
+fn bad_file(path: &str, bytes: &[u8]) -> String {
+    std::fs::write(path, bytes).unwrap();
+    path.into()
+}
+
+#[test]
+fn unsupported_depth_type() {
+    let case = Case::new();
+    let bad = bad_file(&case.path("bad.txt"), b"1 2 3");
+    let result = case.render(&case.photo, &bad, &[]);
+    case.assert_failed_cleanly(&result, &["bad.txt", "unsupported file type"]);
+}
+
+#[test]
+fn unknown_board_with_typo() {
+    let case = Case::new();
+    let out = case.out();
+    let result = run(&[
+        "render",
+        &case.photo,
+        "--depth",
+        &case.depth,
+        "--board",
+        "looking-glass-portait",
+        "--out",
+        &out,
+    ]);
+    case.assert_failed_cleanly(
+        &result,
+        &["looking-glass-portait", "looking-glass-portrait"],
+    );
+}
+
+#[test]
+fn bad_calibration_file() {
+    let case = Case::new();
+    let bad = bad_file(
+        &case.path("bad-visual.json"),
+        b"{\"pitch\": {\"value\": 50}, ",
+    );
+    let result = case.render(&case.photo, &case.depth, &["--calibration", &bad]);
+    case.assert_failed_cleanly(&result, &["bad-visual.json"]);
+    let bad = bad_file(
+        &case.path("bad-visual2.json"),
+        b"{\"pitch\": {\"value\": -50}, \"slope\": {\"value\": -7}, \"center\": {\"value\": 0}}",
+    );
+    let result = case.render(&case.photo, &case.depth, &["--calibration", &bad]);
+    case.assert_failed_cleanly(&result, &["bad-visual2.json", "pitch"]);
+}
+
+#[test]
+fn sbs_pair_out_of_range() {
+    let case = Case::new();
+    let result = case.render(&case.photo, &case.depth, &["--sbs-pair", "0,6"]);
+    case.assert_failed_cleanly(&result, &["--sbs-pair 0,6", "0..5"]);
+}
+
+#[test]
+fn bad_fov_and_depthiness() {
+    let case = Case::new();
+    let result = case.render(&case.photo, &case.depth, &["--fov", "200"]);
+    case.assert_failed_cleanly(&result, &["field of view 200"]);
+    let result = case.render(&case.photo, &case.depth, &["--depthiness", "-1"]);
+    case.assert_failed_cleanly(&result, &["--depthiness -1"]);
+}
+
+#[test]
+fn failed_render_keeps_an_earlier_output_intact() {
+    let case = Case::new();
+    let ok = case.render(&case.photo, &case.depth, &["--only", "panel"]);
+    assert!(ok.status.success(), "{}", stderr(&ok));
+    let out = Path::new(&case.out()).to_path_buf();
+    let before = std::fs::read(out.join("panel.png")).unwrap();
+    let bad = bad_file(&case.path("bad.jpg"), b"garbage");
+    let result = case.render(&bad, &case.depth, &[]);
+    assert_eq!(result.status.code(), Some(1));
+    assert_eq!(entries(&out), ["panel.png", "run.json"]);
+    assert_eq!(std::fs::read(out.join("panel.png")).unwrap(), before);
+}
+
+#[test]
+fn depth_command_needs_a_model() {
+    let case = Case::new();
+    let out = case.path("depth-out.npy");
+    let result = run(&["depth", &case.photo, "--out", &out]);
+    case.assert_failed_cleanly(&result, &["no depth model yet", "pass --depth"]);
+}
+
+#[test]
+fn view_with_unknown_output_type() {
+    let case = Case::new();
+    let out = case.path("view.gif");
+    let result = run(&[
+        "view",
+        &case.photo,
+        "--depth",
+        &case.depth,
+        "--camera",
+        "0.1,0,0",
+        "--out",
+        &out,
+    ]);
+    case.assert_failed_cleanly(&result, &["view.gif", ".png, .exr, .npy"]);
+}
+
+#[test]
+fn view_with_camera_beyond_focus() {
+    let case = Case::new();
+    let out = case.path("view.png");
+    let result = run(&[
+        "view",
+        &case.photo,
+        "--depth",
+        &case.depth,
+        "--focus",
+        "2",
+        "--camera",
+        "0,0,2.5",
+        "--out",
+        &out,
+    ]);
+    case.assert_failed_cleanly(&result, &["beyond the zero-parallax plane"]);
+}
+
+#[test]
+fn malformed_camera_is_a_usage_error() {
+    let case = Case::new();
+    let out = case.path("view.png");
+    let result = run(&[
+        "view",
+        &case.photo,
+        "--depth",
+        &case.depth,
+        "--camera",
+        "0.1,0",
+        "--out",
+        &out,
+    ]);
+    assert_eq!(result.status.code(), Some(2));
+    assert!(stderr(&result).contains("TX,TY,TZ"));
+}
+
+#[test]
+fn weave_with_missing_view() {
+    let case = Case::new();
+    let views = case.dir.path().join("bad-views");
+    std::fs::create_dir(&views).unwrap();
+    for i in [0, 1, 2, 3, 4, 6] {
+        scene_photo()
+            .save(views.join(format!("view_{i:02}.png")))
+            .unwrap();
+    }
+    let out = case.path("panel.png");
+    let board = tiny_board();
+    let views_s = views.display().to_string();
+    let result = run(&["weave", &views_s, "--board", &board, "--out", &out]);
+    case.assert_failed_cleanly(&result, &["bad-views", "view_05.png is missing"]);
+    std::fs::remove_file(views.join("view_06.png")).unwrap();
+    let result = run(&["weave", &views_s, "--board", &board, "--out", &out]);
+    case.assert_failed_cleanly(&result, &["found 5 view_NN.png files", "6 views"]);
+}

@@ -1,0 +1,279 @@
+//! End-to-end renders of a tiny synthetic scene on a tiny board, against committed
+//! goldens: views with a tolerance (warping may shift by rounding), woven frames exactly.
+//! `RESHADER_UPDATE_GOLDENS=1 cargo test --test spine_render` rewrites the goldens.
+
+mod spine_support;
+
+use std::path::Path;
+
+use image::RgbImage;
+use serde_json::Value;
+use spine_support::*;
+
+const VIEWS: usize = 6;
+
+fn render_tiny(out: &Path, extra: &[&str]) -> Value {
+    let tmp = out.parent().unwrap();
+    let (photo, depth) = write_scene(tmp);
+    let board = tiny_board();
+    let out_s = out.display().to_string();
+    let mut args = vec![
+        "render",
+        &photo,
+        "--depth",
+        &depth,
+        "--board",
+        &board,
+        "--focus",
+        "2",
+        "--depthiness",
+        "0.5",
+        "--out",
+        &out_s,
+    ];
+    args.extend_from_slice(extra);
+    let result = run(&args);
+    assert!(result.status.success(), "{}", stderr(&result));
+    serde_json::from_slice(&std::fs::read(out.join("run.json")).unwrap()).unwrap()
+}
+
+fn updating() -> bool {
+    std::env::var_os("RESHADER_UPDATE_GOLDENS").is_some()
+}
+
+/// Warped views may differ from the goldens by interpolation rounding, not in content.
+fn assert_close(actual: &RgbImage, golden: &RgbImage, what: &str) {
+    assert_eq!(actual.dimensions(), golden.dimensions(), "{what}: size");
+    let diffs: Vec<u8> = actual
+        .as_raw()
+        .iter()
+        .zip(golden.as_raw())
+        .map(|(a, b)| a.abs_diff(*b))
+        .collect();
+    let mean = diffs.iter().map(|&d| f64::from(d)).sum::<f64>() / diffs.len() as f64;
+    let large = diffs.iter().filter(|&&d| d > 16).count();
+    assert!(mean < 1.0, "{what}: mean difference {mean:.2} levels");
+    assert!(
+        large * 100 <= diffs.len(),
+        "{what}: {large} values differ by > 16 levels"
+    );
+}
+
+#[test]
+fn views_and_woven_frames_match_goldens() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("out");
+    render_tiny(&out, &[]);
+    let golden = golden_dir();
+    let mut names: Vec<String> = (0..VIEWS)
+        .map(|i| format!("views/view_{i:02}.png"))
+        .collect();
+    names.extend(["panel.png", "sbs.png", "quilt_qs3x2a1.5.png"].map(String::from));
+    if updating() {
+        for name in &names {
+            let dest = golden.join(name);
+            std::fs::create_dir_all(dest.parent().unwrap()).unwrap();
+            std::fs::copy(out.join(name), dest).unwrap();
+        }
+    }
+    for name in &names[..VIEWS] {
+        assert_close(&load(&out.join(name)), &load(&golden.join(name)), name);
+    }
+    // Weaving is exact: the golden views woven by the CLI give the golden panel.
+    let panel = tmp.path().join("panel_from_goldens.png");
+    let golden_views = golden.join("views").display().to_string();
+    let board = tiny_board();
+    let result = run(&[
+        "weave",
+        &golden_views,
+        "--board",
+        &board,
+        "--out",
+        &panel.display().to_string(),
+    ]);
+    assert!(result.status.success(), "{}", stderr(&result));
+    assert!(
+        load(&panel) == load(&golden.join("panel.png")),
+        "woven panel differs from golden"
+    );
+}
+
+#[test]
+fn render_products_are_consistent_with_its_views() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("out");
+    render_tiny(&out, &[]);
+    assert_eq!(
+        entries(&out),
+        [
+            "panel.png",
+            "quilt_qs3x2a1.5.png",
+            "run.json",
+            "sbs.png",
+            "views"
+        ]
+    );
+    let views: Vec<RgbImage> = (0..VIEWS)
+        .map(|i| load(&out.join(format!("views/view_{i:02}.png"))))
+        .collect();
+    assert!(views.iter().all(|v| v.dimensions() == (24, 16)));
+    // The quilt: view 0 bottom-left, left to right, then upward.
+    let quilt = load(&out.join("quilt_qs3x2a1.5.png"));
+    assert_eq!(quilt.dimensions(), (72, 32));
+    for (i, view) in views.iter().enumerate() {
+        let (col, row_from_bottom) = (i as u32 % 3, i as u32 / 3);
+        let tile = image::imageops::crop_imm(&quilt, col * 24, (1 - row_from_bottom) * 16, 24, 16)
+            .to_image();
+        assert!(tile == *view, "quilt tile of view {i}");
+    }
+    // sbs: the outermost pair.
+    let sbs = load(&out.join("sbs.png"));
+    assert!(image::imageops::crop_imm(&sbs, 0, 0, 24, 16).to_image() == views[0]);
+    assert!(image::imageops::crop_imm(&sbs, 24, 0, 24, 16).to_image() == views[VIEWS - 1]);
+    // The panel is the board's size and every subpixel comes from some view.
+    let panel = load(&out.join("panel.png"));
+    assert_eq!(panel.dimensions(), (64, 48));
+    // The square is nearer than the focus plane: it moves against the camera, so it sits
+    // further right in view 0 (leftmost camera) than in the last view.
+    let red_centre = |v: &RgbImage| {
+        let xs: Vec<u32> = v
+            .enumerate_pixels()
+            .filter(|(_, _, p)| p.0[0] > 200 && p.0[2] < 100)
+            .map(|(x, _, _)| x)
+            .collect();
+        xs.iter().sum::<u32>() as f64 / xs.len() as f64
+    };
+    assert!(red_centre(&views[0]) > red_centre(&views[VIEWS - 1]) + 1.0);
+}
+
+#[test]
+fn run_json_records_inputs_cameras_and_stages() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("out");
+    let run = render_tiny(&out, &[]);
+    let photo_sha = reshader::record::sha256_file(&tmp.path().join("photo.png")).unwrap();
+    assert_eq!(run["inputs"]["photo"]["sha256"], photo_sha.as_str());
+    assert_eq!(run["inputs"]["photo"]["fov_source"], "default");
+    assert_eq!(run["inputs"]["depth"]["kind"], "depth");
+    assert!(run["inputs"]["board_file"]["sha256"].is_string());
+    assert_eq!(run["board"]["name"], "tiny-test");
+    assert_eq!(run["reshade"], "identity (no model)");
+    assert_eq!(run["geometry"]["focus"], 2.0);
+    assert_eq!(run["geometry"]["depthiness_source"], "command_line");
+    let xs: Vec<f64> = run["views"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v["camera"][0].as_f64().unwrap())
+        .collect();
+    assert_eq!(xs.len(), VIEWS);
+    assert!(
+        xs.windows(2).all(|w| w[0] < w[1]),
+        "view 0 leftmost: {xs:?}"
+    );
+    assert!((xs[0] + xs[VIEWS - 1]).abs() < 1e-12);
+    // Outermost cameras: focus · tan(cone/2) · depthiness.
+    assert!((xs[VIEWS - 1] - 2.0 * 20f64.to_radians().tan() * 0.5).abs() < 1e-9);
+    for stage in ["load", "reshade", "relocate", "weave", "write"] {
+        assert!(run["timings_ms"][stage].is_number(), "stage {stage}");
+    }
+    assert_eq!(run["outputs"].as_array().unwrap().len(), VIEWS + 4);
+}
+
+#[test]
+fn only_limits_the_outputs() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("out");
+    render_tiny(&out, &["--only", "panel,quilt"]);
+    assert_eq!(
+        entries(&out),
+        ["panel.png", "quilt_qs3x2a1.5.png", "run.json"]
+    );
+}
+
+#[test]
+fn calibration_changes_the_weave() {
+    let tmp = tempfile::tempdir().unwrap();
+    let plain = tmp.path().join("plain");
+    render_tiny(&plain, &["--only", "panel"]);
+    let calibrated = tmp.path().join("cal");
+    let cal = support_dir().join("visual.json").display().to_string();
+    let run = render_tiny(&calibrated, &["--only", "panel", "--calibration", &cal]);
+    assert!(run["inputs"]["calibration"]["sha256"].is_string());
+    assert!(load(&plain.join("panel.png")) != load(&calibrated.join("panel.png")));
+}
+
+#[test]
+fn view_command_reproduces_a_render_view() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("out");
+    let run = render_tiny(&out, &["--only", "views"]);
+    let camera = &run["views"][1]["camera"];
+    let camera = format!("{},{},{}", camera[0], camera[1], camera[2]);
+    let photo = tmp.path().join("photo.png").display().to_string();
+    let depth = tmp.path().join("depth.npy").display().to_string();
+    let single = tmp.path().join("view.png");
+    let result = run_view(&photo, &depth, &camera, &single, &[]);
+    assert!(result.status.success(), "{}", stderr(&result));
+    assert!(load(&single) == load(&out.join("views/view_01.png")));
+    // Without reshading the identity reshader changes nothing either.
+    let no_reshade = tmp.path().join("view_nr.png");
+    let result = run_view(&photo, &depth, &camera, &no_reshade, &["--no-reshade"]);
+    assert!(result.status.success(), "{}", stderr(&result));
+    assert!(load(&single) == load(&no_reshade));
+}
+
+fn run_view(
+    photo: &str,
+    depth: &str,
+    camera: &str,
+    out: &Path,
+    extra: &[&str],
+) -> std::process::Output {
+    let out = out.display().to_string();
+    let mut args = vec![
+        "view", photo, "--depth", depth, "--focus", "2", "--camera", camera, "--out", &out,
+    ];
+    args.extend_from_slice(extra);
+    run(&args)
+}
+
+#[test]
+fn reshade_without_model_returns_the_photo_in_every_format() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (photo, depth) = write_scene(tmp.path());
+    for ext in ["png", "exr", "npy"] {
+        let out = tmp.path().join(format!("reshaded.{ext}"));
+        let result = run(&[
+            "reshade",
+            &photo,
+            "--depth",
+            &depth,
+            "--camera",
+            "-0.1,0,0.05",
+            "--out",
+            &out.display().to_string(),
+        ]);
+        assert!(result.status.success(), "{}", stderr(&result));
+        assert!(stderr(&result).contains("no reshading model"));
+        if ext == "npy" {
+            let bytes = std::fs::read(&out).unwrap();
+            let header = String::from_utf8_lossy(&bytes[..128]);
+            assert!(header.contains("'shape': (16, 24, 3)"), "{header}");
+            assert_eq!(bytes.len(), 128 + 16 * 24 * 3 * 4);
+        } else {
+            assert!(load(&out) == scene_photo(), "{ext}");
+        }
+    }
+}
+
+#[test]
+fn boards_lists_every_builtin() {
+    let result = run(&["boards"]);
+    assert!(result.status.success());
+    let text = String::from_utf8_lossy(&result.stdout);
+    for name in reshader::interleave::Board::builtin_names() {
+        assert!(text.contains(name), "{name} missing from:\n{text}");
+    }
+    assert!(text.contains("1536x2048, 48 views"));
+}

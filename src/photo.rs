@@ -270,6 +270,49 @@ mod tests {
         assert_eq!(hfov_from_35mm_focal(0.0, 10, 10), None);
     }
 
+    /// A valid PNG whose header claims `width`×`height` pixels.
+    fn png_claiming(width: u32, height: u32) -> Vec<u8> {
+        let mut png = Vec::new();
+        RgbImage::new(1, 1)
+            .write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)
+            .unwrap();
+        // Signature (8), IHDR length (4), "IHDR" (4), then width and height.
+        png[16..20].copy_from_slice(&width.to_be_bytes());
+        png[20..24].copy_from_slice(&height.to_be_bytes());
+        let crc = crc32(&png[12..29]);
+        png[29..33].copy_from_slice(&crc.to_be_bytes());
+        png
+    }
+
+    fn crc32(bytes: &[u8]) -> u32 {
+        let mut crc = !0u32;
+        for &b in bytes {
+            crc ^= u32::from(b);
+            for _ in 0..8 {
+                crc = if crc & 1 != 0 {
+                    (crc >> 1) ^ 0xEDB8_8320
+                } else {
+                    crc >> 1
+                };
+            }
+        }
+        !crc
+    }
+
+    #[test]
+    fn absurd_dimensions_are_refused_before_decoding() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("huge.png");
+        std::fs::write(&path, png_claiming(100_000, 100_000)).unwrap();
+        let err = Photo::load(&path, None).unwrap_err();
+        assert!(matches!(err, PhotoError::Decode { .. }), "{err}");
+        assert!(err.to_string().contains("huge.png"), "{err}");
+        assert!(err.to_string().contains("limit"), "{err}");
+        // The patched file is otherwise valid: with a true size it decodes.
+        std::fs::write(&path, png_claiming(1, 1)).unwrap();
+        assert!(Photo::load(&path, None).is_ok());
+    }
+
     #[test]
     fn rgb8_roundtrip_is_exact() {
         let img = RgbImage::from_fn(5, 3, |x, y| image::Rgb([x as u8 * 50, y as u8 * 80, 7]));

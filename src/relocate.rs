@@ -45,15 +45,20 @@ pub trait Relocator {
 #[derive(Clone, Copy, Debug)]
 pub struct MeshWarp {
     /// A triangle is cut when its corners' parallax differs by more than this many
-    /// view pixels, i.e. when the view would stretch it across a depth edge.
+    /// view pixels, i.e. when the view would stretch it across a depth edge. Monocular
+    /// depth spreads edges over a few pixels; at 1 px such ramps tear inside objects.
     pub cut_px: f64,
 }
 
 impl Default for MeshWarp {
     fn default() -> Self {
-        Self { cut_px: 1.0 }
+        Self { cut_px: 2.0 }
     }
 }
+
+/// A reflected fill pixel counts as background when it is at most this much (relative)
+/// nearer than the background pixel at the hole's edge.
+const BACKGROUND_TOLERANCE: f32 = 0.1;
 
 /// A mesh vertex in view pixels, with its view-space depth.
 #[derive(Clone, Copy)]
@@ -228,26 +233,33 @@ impl Frame {
         }
     }
 
-    /// Each uncovered pixel takes the colour of the farther of the nearest covered pixels
-    /// on either side of it along the baseline (`horizontal` or vertical): disocclusions
+    /// Each uncovered pixel is filled from the farther of the nearest covered pixels on
+    /// either side of it along the baseline (`horizontal` or vertical): disocclusions
     /// open between a foreground edge and the background along that line. Only holes
-    /// with nothing on that line look across it.
+    /// with nothing on that line look across it. See [`Frame::mirrored`] for which
+    /// background pixel gives the colour.
     fn fill_holes_from_background(self, horizontal: bool) -> SrgbImage {
         let (w, h) = (self.width, self.height);
         let along_rows = self.nearest_covered(true);
         let along_cols = self.nearest_covered(false);
-        let (primary, secondary) = if horizontal {
-            (&along_rows, &along_cols)
-        } else {
-            (&along_cols, &along_rows)
-        };
         let mut out = SrgbImage::new(w as u32, h as u32);
         for i in 0..w * h {
             let source = if self.depth[i] > 0.0 {
                 Some(i)
             } else {
-                self.farthest(primary[i])
-                    .or_else(|| self.farthest(secondary[i]))
+                let by_rows = || {
+                    self.farthest(along_rows[i])
+                        .map(|s| self.mirrored(i, s, true))
+                };
+                let by_cols = || {
+                    self.farthest(along_cols[i])
+                        .map(|s| self.mirrored(i, s, false))
+                };
+                if horizontal {
+                    by_rows().or_else(by_cols)
+                } else {
+                    by_cols().or_else(by_rows)
+                }
             };
             if let Some(s) = source {
                 out.put((i % w) as u32, (i / w) as u32, self.colour[s]);
@@ -260,6 +272,33 @@ impl Frame {
         pair.into_iter()
             .flatten()
             .max_by(|&a, &b| self.depth[a].total_cmp(&self.depth[b]))
+    }
+
+    /// The pixel that fills hole `i` from background pixel `edge` on the same row (or
+    /// column): the reflection of `i` about `edge`, so the background's texture continues
+    /// into the hole instead of one pixel being smeared across it; `edge` itself when the
+    /// reflection is outside the frame, uncovered, or nearer than the background.
+    fn mirrored(&self, i: usize, edge: usize, rows: bool) -> usize {
+        let w = self.width;
+        let (pos, edge_pos, len) = if rows {
+            (i % w, edge % w, w)
+        } else {
+            (i / w, edge / w, self.height)
+        };
+        let Some(m) = (2 * edge_pos).checked_sub(pos).filter(|&m| m < len) else {
+            return edge;
+        };
+        let mirror = if rows {
+            edge - edge_pos + m
+        } else {
+            m * w + edge % w
+        };
+        let background = self.depth[edge];
+        if self.depth[mirror] >= background * (1.0 - BACKGROUND_TOLERANCE) {
+            mirror
+        } else {
+            edge
+        }
     }
 
     /// For every pixel, the nearest covered pixel before and after it along its row
@@ -401,6 +440,31 @@ mod tests {
         }
         // No colour between red and blue: the edge triangles were cut, not stretched.
         assert!(out.data().chunks(3).all(|p| p == RED || p == BLUE));
+    }
+
+    #[test]
+    fn disocclusion_fill_continues_the_background_texture() {
+        let (mut img, depth) = square_scene();
+        let stripe = |x: u32| if x % 2 == 0 { BLUE } else { [0.0, 1.0, 0.0] };
+        for y in 0..H {
+            for x in 0..W {
+                if img.get(x, y) == BLUE {
+                    img.put(x, y, stripe(x));
+                }
+            }
+        }
+        let out = MeshWarp::default()
+            .render(&img, &depth, &camera(), &view(0.15))
+            .unwrap();
+        let right_edge = *red_columns(&out, 16).last().unwrap();
+        let revealed: Vec<[f32; 3]> = (right_edge + 1..29).map(|x| out.get(x, 16)).collect();
+        assert!(revealed.len() >= 3, "{revealed:?}");
+        // Wall colours (stripes blended by the sub-pixel shift), never the square's red.
+        assert!(revealed.iter().all(|p| p[0] == 0.0), "{revealed:?}");
+        assert!(
+            revealed.windows(2).any(|w| w[0] != w[1]),
+            "smeared: {revealed:?}"
+        );
     }
 
     #[test]

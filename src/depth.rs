@@ -47,6 +47,11 @@ pub enum DepthError {
         path: PathBuf,
         source: image::ImageError,
     },
+    #[error("depth map {path}: {source}")]
+    Exr {
+        path: PathBuf,
+        source: exr::error::Error,
+    },
     #[error("depth map {path}: {detail}")]
     Channels { path: PathBuf, detail: String },
     #[error("depth map {path}: unsupported file type; use .npy, .png (16-bit), .pfm or .exr")]
@@ -284,7 +289,7 @@ impl DepthMap {
     }
 
     /// Encodes the map in the format named by the extension of `path`: .npy (float32),
-    /// .pfm, .exr (float, depth in every channel) or .png (16-bit, thousandths of a unit).
+    /// .pfm, .exr (float, one channel named Z) or .png (16-bit, thousandths of a unit).
     pub fn encode(&self, path: &Path) -> Result<Vec<u8>, DepthError> {
         let all = [
             FileFormat::Npy,
@@ -302,15 +307,7 @@ impl DepthMap {
         match format {
             FileFormat::Npy => Ok(npy::encode_f32(&[self.height, self.width], &self.data)),
             FileFormat::Pfm => Ok(pfm::encode(self.width, self.height, &self.data)),
-            FileFormat::Exr => {
-                let rgb: Vec<f32> = self.data.iter().flat_map(|&d| [d, d, d]).collect();
-                let img = image::Rgb32FImage::from_raw(self.width as u32, self.height as u32, rgb)
-                    .expect("buffer matches size");
-                let mut buf = Cursor::new(Vec::new());
-                img.write_to(&mut buf, ImageFormat::OpenExr)
-                    .map_err(encode_err)?;
-                Ok(buf.into_inner())
-            }
+            FileFormat::Exr => encode_exr(path, self),
             FileFormat::Png => {
                 let clipped = self
                     .data
@@ -418,14 +415,69 @@ fn read_png16(path: &Path, bytes: &[u8]) -> Result<RawMap, DepthError> {
     })
 }
 
-/// EXR depth is read from the first (red or luminance) channel.
+/// Channels an EXR depth map is looked for in, in order; otherwise the first channel.
+const EXR_DEPTH_CHANNELS: [&str; 5] = ["Z", "depth", "Y", "R", "V"];
+
+/// EXR depth comes from the channel named Z (or depth, Y, R, V), else the first one:
+/// depth EXRs are usually single-channel, which the image crate's RGB reader refuses.
 fn read_exr(path: &Path, bytes: &[u8]) -> Result<RawMap, DepthError> {
-    let img = decode_image(path, bytes, ImageFormat::OpenExr)?.into_rgb32f();
+    use exr::prelude::*;
+    let exr_err = |source| DepthError::Exr {
+        path: path.into(),
+        source,
+    };
+    let image = read()
+        .no_deep_data()
+        .largest_resolution_level()
+        .all_channels()
+        .first_valid_layer()
+        .all_attributes()
+        .from_buffered(Cursor::new(bytes))
+        .map_err(exr_err)?;
+    let layer = image.layer_data;
+    let channels = &layer.channel_data.list;
+    let channel = EXR_DEPTH_CHANNELS
+        .iter()
+        .find_map(|name| channels.iter().find(|c| c.name.eq(name)))
+        .or_else(|| channels.first())
+        .ok_or_else(|| DepthError::Channels {
+            path: path.into(),
+            detail: "the EXR has no channels".into(),
+        })?;
+    let values = match &channel.sample_data {
+        FlatSamples::F16(v) => v.iter().map(|x| x.to_f32()).collect(),
+        FlatSamples::F32(v) => v.clone(),
+        FlatSamples::U32(v) => v.iter().map(|&x| x as f32).collect(),
+    };
     Ok(RawMap {
-        width: img.width() as usize,
-        height: img.height() as usize,
-        values: img.pixels().map(|p| p.0[0]).collect(),
+        width: layer.size.x(),
+        height: layer.size.y(),
+        values,
     })
+}
+
+/// A single-channel ("Z") float EXR.
+fn encode_exr(path: &Path, map: &DepthMap) -> Result<Vec<u8>, DepthError> {
+    use exr::prelude::*;
+    let channels = AnyChannels::sort(SmallVec::from_vec(vec![AnyChannel::new(
+        "Z",
+        FlatSamples::F32(map.data.clone()),
+    )]));
+    let layer = Layer::new(
+        (map.width, map.height),
+        LayerAttributes::named("depth"),
+        Encoding::FAST_LOSSLESS,
+        channels,
+    );
+    let mut buf = Cursor::new(Vec::new());
+    Image::from_layer(layer)
+        .write()
+        .to_buffered(&mut buf)
+        .map_err(|source| DepthError::Exr {
+            path: path.into(),
+            source,
+        })?;
+    Ok(buf.into_inner())
 }
 
 fn check_finite(path: &Path, raw: &RawMap) -> Result<(), DepthError> {
@@ -505,6 +557,20 @@ mod tests {
                 assert!((a - b).abs() < 1e-3, "{ext}: {a} vs {b}");
             }
         }
+    }
+
+    #[test]
+    fn rgb_exr_depth_comes_from_red() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("rgb.exr");
+        let rgb: Vec<f32> = (0..6).flat_map(|i| [1.0 + i as f32, 0.0, 9.0]).collect();
+        image::Rgb32FImage::from_raw(3, 2, rgb)
+            .unwrap()
+            .save(&path)
+            .unwrap();
+        let raw = read_raw(&path).unwrap();
+        assert_eq!((raw.width, raw.height), (3, 2));
+        assert_eq!(raw.values, vec![1.0, 2.0, 3.0, 4.0, 5.0, 6.0]);
     }
 
     #[test]

@@ -6,7 +6,10 @@
 //! the pixels to the view, and [`pipeline`] runs them in order and hands the views to the
 //! `interleave` crate; [`output`] and [`record`] write the results and run.json.
 
+pub mod capture;
 pub mod depth;
+pub mod display;
+pub mod gallery;
 pub mod npy;
 pub mod output;
 pub mod pfm;

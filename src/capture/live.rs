@@ -1,0 +1,496 @@
+//! `reshader live`: camera → working resolution → views → weave → display, one frame at a
+//! time, dropping frames rather than queueing them.
+//!
+//! Capture (with decoding) runs on its own thread and leaves only its newest frame in a
+//! one-slot mailbox; the processing loop always takes the newest, so a slow stage costs
+//! frame rate, never latency.
+
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Condvar, Mutex};
+use std::time::{Duration, Instant};
+
+use image::imageops::{self, FilterType};
+use image::RgbImage;
+use interleave::{Blend, Board, Weaver};
+
+use super::{CameraRequest, CaptureError, Frame, FrameSource, PixelFormat};
+use crate::display::{DisplayError, FrameSink};
+
+#[derive(Debug, thiserror::Error)]
+pub enum LiveError {
+    #[error(transparent)]
+    Capture(#[from] CaptureError),
+    #[error(transparent)]
+    Display(#[from] DisplayError),
+    #[error(transparent)]
+    Board(#[from] interleave::BoardError),
+    #[error("weaving failed: {0}")]
+    Weave(#[from] interleave::WeaveError),
+    #[error("--board is required unless --list-formats is given")]
+    NoBoard,
+    #[error("cannot install the SIGINT/SIGTERM handler: {0}")]
+    Signal(std::io::Error),
+}
+
+#[derive(clap::Args, Debug)]
+pub struct LiveArgs {
+    /// V4L2 camera device, or a recording of raw YUYV/MJPEG frames (RSHFRM01 file).
+    #[arg(long, default_value = "/dev/video0")]
+    pub camera: PathBuf,
+    /// Built-in board name (see `reshader boards`) or path of a board .toml file.
+    #[arg(long, required_unless_present = "list_formats")]
+    pub board: Option<String>,
+    /// Per-unit calibration in Looking-Glass visual.json form.
+    #[arg(long)]
+    pub calibration: Option<PathBuf>,
+    /// Frame rate asked of the camera.
+    #[arg(long, default_value_t = 30)]
+    pub fps: u32,
+    /// Where frames go: `none` (numbered PNGs in --out), `png:DIR`, `fb:/dev/fb0`, or
+    /// `fb:FILE:WIDTHxHEIGHT:FORMAT[:STRIDE]` for a file standing in for a framebuffer.
+    #[arg(long, default_value = "none")]
+    pub display: String,
+    /// Directory of the PNG frames for `--display none`.
+    #[arg(long, default_value = "live-frames")]
+    pub out: PathBuf,
+    /// List the camera's formats, sizes and frame rates, and exit.
+    #[arg(long)]
+    pub list_formats: bool,
+    /// Camera pixel format [default: the camera's current one if decodable, else MJPEG].
+    #[arg(long)]
+    pub format: Option<PixelFormat>,
+    /// Capture size WIDTHxHEIGHT [default: the camera's current one].
+    #[arg(long, value_parser = parse_size)]
+    pub size: Option<(u32, u32)>,
+    /// Working resolution of the views, WIDTHxHEIGHT [default: the board's view size].
+    #[arg(long, value_parser = parse_size)]
+    pub work_size: Option<(u32, u32)>,
+    /// Stop after this many frames have been shown.
+    #[arg(long)]
+    pub frames: Option<u64>,
+    /// Replay a recording at its recorded pace (dropping frames when behind) instead of
+    /// as fast as the pipeline takes them.
+    #[arg(long)]
+    pub realtime: bool,
+}
+
+pub const LIVE_ABOUT: &str = "\
+Show a live camera on a light-field panel: capture (V4L2, YUYV or MJPEG) → views at the
+working resolution → weave for the board → display. Frames are dropped, never queued,
+when a stage is slower than the camera. At -v the achieved fps and per-stage times are
+logged once a second; a summary is printed at the end.
+
+Until a depth model ships, all views are the camera frame itself (the panel shows it
+flat); depth and reshading slot in between capture and weaving.
+
+Examples:
+  reshader live --camera /dev/video0 --list-formats
+  reshader live --camera /dev/video0 --board looking-glass-portrait --display fb:/dev/fb0 -v
+  reshader live --camera recording.rshfrm --board looking-glass-portrait --frames 300 -v";
+
+fn parse_size(s: &str) -> Result<(u32, u32), String> {
+    let (w, h) = s
+        .split_once('x')
+        .ok_or_else(|| format!("expected WIDTHxHEIGHT, got '{s}'"))?;
+    let num = |t: &str| {
+        t.parse::<u32>()
+            .ok()
+            .filter(|&v| (1..=super::MAX_FRAME_SIDE).contains(&v))
+            .ok_or_else(|| format!("'{t}' is not a size in 1..={}", super::MAX_FRAME_SIDE))
+    };
+    Ok((num(w)?, num(h)?))
+}
+
+/// `reshader live`.
+pub fn run_live(args: &LiveArgs) -> Result<(), LiveError> {
+    if args.list_formats {
+        for format in super::list_formats(&args.camera)? {
+            print!("{format}");
+        }
+        return Ok(());
+    }
+    let board_name = args.board.as_deref().ok_or(LiveError::NoBoard)?;
+    let board = crate::pipeline::load_board(board_name, args.calibration.as_deref())?;
+    let request = CameraRequest {
+        format: args.format,
+        size: args.size,
+        fps: Some(args.fps),
+        paced: args.realtime,
+    };
+    let source = super::open_source(&args.camera, &request)?;
+    let sink = crate::display::open_sink(&args.display, &args.out)?;
+    let stop = crate::gallery::cli::stop_on_signals().map_err(LiveError::Signal)?;
+    let opts = LiveOptions {
+        work_size: args.work_size,
+        max_frames: args.frames,
+    };
+    let summary = run_pipeline(source, sink, &board, &opts, &stop)?;
+    eprintln!("{summary}");
+    if summary.fps() < f64::from(args.fps) * 0.9 && summary.frames > 1 {
+        eprintln!(
+            "note: below the requested {} fps; a smaller --work-size or a board with fewer \
+             panel pixels is faster",
+            args.fps
+        );
+    }
+    Ok(())
+}
+
+#[derive(Clone, Debug, Default)]
+pub struct LiveOptions {
+    pub work_size: Option<(u32, u32)>,
+    pub max_frames: Option<u64>,
+}
+
+/// Stage names in pipeline order, as reported.
+pub const STAGES: [&str; 5] = ["capture", "resize", "views", "weave", "display"];
+
+/// What a run achieved.
+#[derive(Clone, Debug, Default)]
+pub struct LiveSummary {
+    pub frames: u64,
+    /// Frames the camera (or recording) delivered that were never shown.
+    pub dropped: u64,
+    /// Frames whose bytes could not be decoded.
+    pub bad_frames: u64,
+    pub elapsed: Duration,
+    pub work_size: (u32, u32),
+    pub panel_size: (u32, u32),
+    /// Total time per stage, in [`STAGES`] order.
+    pub stage_time: [Duration; 5],
+}
+
+impl LiveSummary {
+    pub fn fps(&self) -> f64 {
+        if self.elapsed.is_zero() {
+            return 0.0;
+        }
+        self.frames as f64 / self.elapsed.as_secs_f64()
+    }
+
+    pub fn mean_stage_ms(&self) -> [f64; 5] {
+        let n = self.frames.max(1) as f64;
+        self.stage_time.map(|t| t.as_secs_f64() * 1e3 / n)
+    }
+
+    fn stages_line(&self) -> String {
+        STAGES
+            .iter()
+            .zip(self.mean_stage_ms())
+            .map(|(s, ms)| format!("{s} {ms:.1}"))
+            .collect::<Vec<_>>()
+            .join(", ")
+    }
+}
+
+impl std::fmt::Display for LiveSummary {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "live: {} frames in {:.2} s = {:.1} fps ({} dropped, {} undecodable); views \
+             {}x{}, panel {}x{}; mean ms per frame: {}",
+            self.frames,
+            self.elapsed.as_secs_f64(),
+            self.fps(),
+            self.dropped,
+            self.bad_frames,
+            self.work_size.0,
+            self.work_size.1,
+            self.panel_size.0,
+            self.panel_size.1,
+            self.stages_line()
+        )
+    }
+}
+
+/// Runs until the source ends, `max_frames` were shown, or `stop` is set.
+pub fn run_pipeline(
+    source: Box<dyn FrameSource>,
+    mut sink: Box<dyn FrameSink>,
+    board: &Board,
+    opts: &LiveOptions,
+    stop: &Arc<AtomicBool>,
+) -> Result<LiveSummary, LiveError> {
+    let work_size = opts.work_size.unwrap_or_else(|| board.view_size());
+    log::info!("live: source {}", source.describe());
+    log::info!("live: display {}", sink.describe());
+    log::info!(
+        "live: {} views of {}x{} woven for {} ({}x{}); no depth model yet, so every view is \
+         the camera frame",
+        board.views(),
+        work_size.0,
+        work_size.1,
+        board.name(),
+        board.width(),
+        board.height()
+    );
+    let weaver = Weaver::new(board, work_size.0, work_size.1, Blend::Nearest);
+    let mailbox = Arc::new(Mailbox::default());
+    let capture = spawn_capture(source, Arc::clone(&mailbox), Arc::clone(stop));
+    let mut run = Run::new(work_size, weaver.panel_size());
+    let mut panel = RgbImage::new(0, 0);
+    let result = loop {
+        if stop.load(Ordering::SeqCst) || opts.max_frames.is_some_and(|m| run.total.frames >= m) {
+            break Ok(());
+        }
+        let Some(next) = mailbox.take(stop) else {
+            break Ok(());
+        };
+        let frame = match next {
+            Ok(frame) => frame,
+            Err(e) => break Err(e),
+        };
+        if let Err(e) = run.process(&frame, &weaver, &mut panel, sink.as_mut()) {
+            break Err(e);
+        }
+    };
+    stop.store(true, Ordering::SeqCst);
+    let captured = capture.join().unwrap_or_default();
+    run.total.dropped = captured.dropped + mailbox.overwritten();
+    run.total.bad_frames = captured.bad_frames;
+    run.total.elapsed = run.started.elapsed();
+    result.map(|()| run.total)
+}
+
+/// The processing side's clock and counters.
+struct Run {
+    views: Vec<RgbImage>,
+    started: Instant,
+    total: LiveSummary,
+    window: LiveSummary,
+    window_start: Instant,
+}
+
+impl Run {
+    fn new(work_size: (u32, u32), panel_size: (u32, u32)) -> Self {
+        let total = LiveSummary {
+            work_size,
+            panel_size,
+            ..LiveSummary::default()
+        };
+        Self {
+            views: Vec::new(),
+            started: Instant::now(),
+            window: total.clone(),
+            total,
+            window_start: Instant::now(),
+        }
+    }
+
+    fn process(
+        &mut self,
+        frame: &Frame,
+        weaver: &Weaver,
+        panel: &mut RgbImage,
+        sink: &mut dyn FrameSink,
+    ) -> Result<(), LiveError> {
+        let (w, h) = self.total.work_size;
+        let mut times = [Duration::ZERO; 5];
+        times[0] = frame.decode_time;
+        let t = Instant::now();
+        let work = cover_resize(&frame.image, w, h);
+        times[1] = t.elapsed();
+        let t = Instant::now();
+        flat_views(&work, weaver.views(), &mut self.views);
+        times[2] = t.elapsed();
+        let t = Instant::now();
+        weaver.weave_into(&self.views, panel)?;
+        times[3] = t.elapsed();
+        let t = Instant::now();
+        sink.show(panel)?;
+        times[4] = t.elapsed();
+        for summary in [&mut self.total, &mut self.window] {
+            summary.frames += 1;
+            for (acc, t) in summary.stage_time.iter_mut().zip(times) {
+                *acc += t;
+            }
+        }
+        self.report_window();
+        Ok(())
+    }
+
+    /// Logs the last second's rate and stage times.
+    fn report_window(&mut self) {
+        let elapsed = self.window_start.elapsed();
+        if elapsed < Duration::from_secs(1) {
+            return;
+        }
+        self.window.elapsed = elapsed;
+        log::info!(
+            "live: {:.1} fps; mean ms: {}",
+            self.window.fps(),
+            self.window.stages_line()
+        );
+        self.window = LiveSummary {
+            work_size: self.total.work_size,
+            panel_size: self.total.panel_size,
+            ..LiveSummary::default()
+        };
+        self.window_start = Instant::now();
+    }
+}
+
+/// The views for one frame, into buffers reused between frames. Without depth every
+/// camera sees the same picture; this is where depth estimation and per-view reshading
+/// and relocation go.
+fn flat_views(work: &RgbImage, count: usize, views: &mut Vec<RgbImage>) {
+    views.resize_with(count, || RgbImage::new(work.width(), work.height()));
+    for view in views.iter_mut() {
+        if view.dimensions() == work.dimensions() {
+            view.copy_from_slice(work);
+        } else {
+            *view = work.clone();
+        }
+    }
+}
+
+/// Scales `image` to cover `w`×`h` and crops the centre, keeping its aspect.
+pub fn cover_resize(image: &RgbImage, w: u32, h: u32) -> RgbImage {
+    let (iw, ih) = image.dimensions();
+    if (iw, ih) == (w, h) {
+        return image.clone();
+    }
+    // Crop first to the target aspect so the resize touches only the pixels kept.
+    let (cw, ch) = if u64::from(iw) * u64::from(h) > u64::from(ih) * u64::from(w) {
+        (
+            ((u64::from(ih) * u64::from(w)) / u64::from(h)).max(1) as u32,
+            ih,
+        )
+    } else {
+        (
+            iw,
+            ((u64::from(iw) * u64::from(h)) / u64::from(w)).max(1) as u32,
+        )
+    };
+    let cropped = imageops::crop_imm(image, (iw - cw) / 2, (ih - ch) / 2, cw, ch).to_image();
+    imageops::resize(&cropped, w, h, FilterType::Triangle)
+}
+
+#[derive(Default)]
+struct CaptureStats {
+    dropped: u64,
+    bad_frames: u64,
+}
+
+fn spawn_capture(
+    mut source: Box<dyn FrameSource>,
+    mailbox: Arc<Mailbox>,
+    stop: Arc<AtomicBool>,
+) -> std::thread::JoinHandle<CaptureStats> {
+    std::thread::spawn(move || {
+        let mut stats = CaptureStats::default();
+        while !stop.load(Ordering::SeqCst) {
+            match source.next_frame() {
+                Ok(Some(frame)) => mailbox.put(frame),
+                Ok(None) => break,
+                Err(e) if !e.is_fatal() => {
+                    stats.bad_frames += 1;
+                    log::warn!("{e}; skipping it");
+                }
+                Err(e) => {
+                    mailbox.fail(e);
+                    break;
+                }
+            }
+        }
+        mailbox.close();
+        stats.dropped = source.dropped();
+        stats
+    })
+}
+
+/// A one-frame slot: a new frame replaces one not yet taken.
+#[derive(Default)]
+struct Mailbox {
+    slot: Mutex<Slot>,
+    ready: Condvar,
+}
+
+#[derive(Default)]
+struct Slot {
+    frame: Option<Frame>,
+    error: Option<CaptureError>,
+    closed: bool,
+    overwritten: u64,
+}
+
+impl Mailbox {
+    fn put(&self, frame: Frame) {
+        let mut slot = self.slot.lock().expect("capture mailbox poisoned");
+        if slot.frame.replace(frame).is_some() {
+            slot.overwritten += 1;
+        }
+        self.ready.notify_one();
+    }
+
+    fn fail(&self, error: CaptureError) {
+        self.slot.lock().expect("capture mailbox poisoned").error = Some(error);
+        self.ready.notify_one();
+    }
+
+    fn close(&self) {
+        self.slot.lock().expect("capture mailbox poisoned").closed = true;
+        self.ready.notify_one();
+    }
+
+    /// The newest frame, waiting for one; `None` once capture ended and the slot is
+    /// empty, or when `stop` is set. A capture error is returned after the frames
+    /// delivered before it.
+    fn take(&self, stop: &AtomicBool) -> Option<Result<Frame, LiveError>> {
+        let mut slot = self.slot.lock().expect("capture mailbox poisoned");
+        loop {
+            if let Some(frame) = slot.frame.take() {
+                return Some(Ok(frame));
+            }
+            if let Some(error) = slot.error.take() {
+                return Some(Err(error.into()));
+            }
+            if slot.closed || stop.load(Ordering::SeqCst) {
+                return None;
+            }
+            slot = self
+                .ready
+                .wait_timeout(slot, Duration::from_millis(100))
+                .expect("capture mailbox poisoned")
+                .0;
+        }
+    }
+
+    fn overwritten(&self) -> u64 {
+        self.slot
+            .lock()
+            .expect("capture mailbox poisoned")
+            .overwritten
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn cover_resize_crops_to_the_target_aspect() {
+        // Left half red, right half blue, 8x2; covering 2x2 keeps the centre 2x2 columns
+        // 3..5, one red and one blue.
+        let image = RgbImage::from_fn(8, 2, |x, _| {
+            if x < 4 {
+                image::Rgb([255, 0, 0])
+            } else {
+                image::Rgb([0, 0, 255])
+            }
+        });
+        let out = cover_resize(&image, 2, 2);
+        assert_eq!(out.get_pixel(0, 0).0, [255, 0, 0]);
+        assert_eq!(out.get_pixel(1, 1).0, [0, 0, 255]);
+        assert_eq!(cover_resize(&image, 4, 1).dimensions(), (4, 1));
+    }
+
+    #[test]
+    fn sizes_parse() {
+        assert_eq!(parse_size("640x480"), Ok((640, 480)));
+        assert!(parse_size("640").is_err());
+        assert!(parse_size("0x480").is_err());
+        assert!(parse_size("99999x480").is_err());
+    }
+}

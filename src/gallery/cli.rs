@@ -1,0 +1,287 @@
+//! The `convert` and `watch` subcommands: their arguments and the render pipeline as a
+//! [`Converter`].
+
+use std::collections::BTreeMap;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::AtomicBool;
+use std::sync::Arc;
+use std::time::Duration;
+
+use interleave::{Blend, Board};
+
+use super::watch::{watch, WatchOptions};
+use super::{convert_batch, ConvertReport, Converter, FnConverter, OutLayout, PhotoReport};
+use crate::depth::DepthKind;
+use crate::pipeline::{self, Product, RenderOptions};
+use crate::relocate::MeshWarp;
+use crate::reshade::IdentityReshader;
+
+/// Depth files looked for beside a photo, in order: `NAME_depth.EXT` holds depth in
+/// scene units, `NAME_disparity.EXT` relative disparity.
+pub(crate) const DEPTH_SIDECARS: &[(&str, DepthKind)] = &[
+    ("_depth", DepthKind::Depth),
+    ("_disparity", DepthKind::Disparity),
+];
+const DEPTH_EXTENSIONS: &[&str] = &["npy", "png", "pfm", "exr"];
+
+#[derive(Debug, thiserror::Error)]
+pub enum GalleryError {
+    #[error(transparent)]
+    Board(#[from] interleave::BoardError),
+    #[error(transparent)]
+    Watch(#[from] super::watch::WatchError),
+    #[error("{failed} of {total} photos failed")]
+    SomeFailed { failed: usize, total: usize },
+    #[error("cannot install the SIGINT/SIGTERM handler: {0}")]
+    Signal(std::io::Error),
+}
+
+/// Settings shared by `convert` and `watch`.
+#[derive(clap::Args, Debug)]
+pub struct GalleryArgs {
+    /// Built-in board name (see `reshader boards`) or path of a board .toml file.
+    #[arg(long)]
+    pub board: String,
+    /// Per-unit calibration in Looking-Glass visual.json form.
+    #[arg(long)]
+    pub calibration: Option<PathBuf>,
+    /// Put each photo's outputs in OUT/NAME/ instead of NAME.reshader/ beside the photo.
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// Write only these products (comma-separated); run.json is always written.
+    #[arg(long, value_enum, value_delimiter = ',')]
+    pub only: Vec<Product>,
+    /// Scales the camera baseline: 1 spans the board's view cone, 0 is flat
+    /// [default: as much as the parallax budget allows, as `render` does].
+    #[arg(long)]
+    pub depthiness: Option<f64>,
+    /// Print one JSON object per photo on stdout (status, outputs, timings_ms, error).
+    #[arg(long)]
+    pub json: bool,
+}
+
+#[derive(clap::Args, Debug)]
+pub struct ConvertArgs {
+    /// Photos (JPEG or PNG). Each needs its depth beside it: NAME_depth.{npy,png,pfm,exr}
+    /// (depth in scene units) or NAME_disparity.{npy,png,pfm,exr} (relative disparity).
+    #[arg(required = true)]
+    pub photos: Vec<PathBuf>,
+    #[command(flatten)]
+    pub gallery: GalleryArgs,
+    /// Convert again even when the outputs are up to date.
+    #[arg(long)]
+    pub force: bool,
+}
+
+#[derive(clap::Args, Debug)]
+pub struct WatchArgs {
+    /// Folder to watch (not recursive); photos already in it are converted first.
+    pub dir: PathBuf,
+    #[command(flatten)]
+    pub gallery: GalleryArgs,
+    /// Milliseconds a file must stay unchanged before it counts as complete, when the
+    /// OS does not report its writer closing it.
+    #[arg(long, default_value_t = 2000)]
+    pub settle_ms: u64,
+    /// Milliseconds between rescans of the folder (the only mechanism with --poll).
+    #[arg(long, default_value_t = 1000)]
+    pub rescan_ms: u64,
+    /// Poll the folder instead of using inotify.
+    #[arg(long)]
+    pub poll: bool,
+}
+
+pub const CONVERT_ABOUT: &str = "\
+Convert photos into the board's panel frame (and quilt, views, side-by-side pair), for a
+camera app's gallery or a CI job.
+
+Each photo's outputs go to NAME.reshader/ beside it, or OUT/NAME/ with --out, written
+atomically. A photo converted before with the same bytes and settings is skipped (its
+.reshader-done.json records both) unless --force. One bad photo never stops the batch;
+the exit code is 0 only if every photo succeeded.
+
+Examples:
+  reshader convert ~/DCIM/*.jpg --board looking-glass-go
+  reshader convert a.jpg b.jpg --board looking-glass-portrait --out panels/ --json";
+
+pub const WATCH_ABOUT: &str = "\
+Convert photos as they appear in a folder: inotify (or polling with --poll) notices
+them, a file is converted once its writer closed it or it stopped changing, and photos a
+previous run finished are skipped. Stops cleanly on SIGINT/SIGTERM (a second signal
+exits at once).
+
+Example:
+  reshader watch ~/DCIM/Camera --board looking-glass-go --out ~/lightfield --json";
+
+/// `reshader convert`.
+pub fn run_convert(args: &ConvertArgs) -> Result<(), GalleryError> {
+    let converter = pipeline_converter(&args.gallery)?;
+    let layout = layout(&args.gallery);
+    let json = args.gallery.json;
+    let summary = convert_batch(&args.photos, &layout, args.force, &converter, |r| {
+        print_report(r, json)
+    });
+    eprintln!("{summary}");
+    if summary.all_ok() {
+        Ok(())
+    } else {
+        Err(GalleryError::SomeFailed {
+            failed: summary.failed,
+            total: args.photos.len(),
+        })
+    }
+}
+
+/// `reshader watch`: runs until SIGINT or SIGTERM.
+pub fn run_watch(args: &WatchArgs) -> Result<(), GalleryError> {
+    let converter = pipeline_converter(&args.gallery)?;
+    let stop = stop_on_signals().map_err(GalleryError::Signal)?;
+    let opts = WatchOptions {
+        settle: Duration::from_millis(args.settle_ms),
+        rescan: Duration::from_millis(args.rescan_ms.max(10)),
+        inotify: !args.poll,
+        ..WatchOptions::new(&args.dir, layout(&args.gallery))
+    };
+    let json = args.gallery.json;
+    let summary = watch(&opts, &converter, &stop, |r| print_report(r, json))?;
+    eprintln!("stopped: {summary}");
+    Ok(())
+}
+
+/// A flag set by the first SIGINT or SIGTERM; a second one exits at once.
+pub fn stop_on_signals() -> std::io::Result<Arc<AtomicBool>> {
+    use signal_hook::consts::{SIGINT, SIGTERM};
+    let stop = Arc::new(AtomicBool::new(false));
+    for signal in [SIGINT, SIGTERM] {
+        // Registered first, so it sees the flag as the previous signal left it.
+        signal_hook::flag::register_conditional_shutdown(signal, 130, Arc::clone(&stop))?;
+        signal_hook::flag::register(signal, Arc::clone(&stop))?;
+    }
+    Ok(stop)
+}
+
+fn layout(args: &GalleryArgs) -> OutLayout {
+    match &args.out {
+        Some(dir) => OutLayout::Under(dir.clone()),
+        None => OutLayout::BesidePhoto,
+    }
+}
+
+fn print_report(report: &PhotoReport, json: bool) {
+    let line = if json {
+        report.json_line()
+    } else {
+        report.to_string()
+    };
+    let mut out = std::io::stdout().lock();
+    // A closed stdout (e.g. piped into `head`) must not stop the conversions.
+    let _ = writeln!(out, "{line}").and_then(|()| out.flush());
+}
+
+/// The render pipeline as a converter: the board (and, once they exist, the models) are
+/// loaded here, once, and shared by every photo.
+pub fn pipeline_converter(args: &GalleryArgs) -> Result<impl Converter, GalleryError> {
+    let board = pipeline::load_board(&args.board, args.calibration.as_deref())?;
+    let fingerprint = fingerprint(args, &board);
+    let board_file = Path::new(&args.board)
+        .is_file()
+        .then(|| PathBuf::from(&args.board));
+    let only = args.only.clone();
+    let calibration = args.calibration.clone();
+    let depthiness = args.depthiness;
+    let reshader = IdentityReshader;
+    let relocator = MeshWarp::default();
+    Ok(FnConverter::new(
+        fingerprint,
+        move |photo: &Path, out_dir: &Path| -> Result<ConvertReport, String> {
+            let (depth, depth_kind) = find_depth(photo)?;
+            let opts = RenderOptions {
+                photo: photo.into(),
+                depth,
+                depth_kind,
+                fov: None,
+                board: board.clone(),
+                board_file: board_file.clone(),
+                calibration: calibration.clone(),
+                focus: None,
+                depthiness,
+                blend: Blend::Nearest,
+                only: only.clone(),
+                sbs_pair: None,
+                out_dir: out_dir.into(),
+            };
+            let record =
+                pipeline::render(&opts, &reshader, &relocator).map_err(|e| e.to_string())?;
+            Ok(ConvertReport {
+                outputs: record.outputs.iter().map(|o| out_dir.join(o)).collect(),
+                timings_ms: record
+                    .timings_ms
+                    .stages()
+                    .iter()
+                    .cloned()
+                    .collect::<BTreeMap<_, _>>(),
+            })
+        },
+    ))
+}
+
+/// Everything that changes a conversion's outputs, so that changing it reconverts.
+fn fingerprint(args: &GalleryArgs, board: &Board) -> String {
+    let calibration = args
+        .calibration
+        .as_deref()
+        .map(|p| super::sha256_file(p).unwrap_or_else(|e| format!("unreadable: {e}")));
+    format!(
+        "reshader {}; board {} from {}; calibration {:?}; only {:?}; depthiness {:?}; \
+         reshade identity; relocate mesh-warp",
+        env!("CARGO_PKG_VERSION"),
+        board.name(),
+        board.origin(),
+        calibration,
+        args.only,
+        args.depthiness
+    )
+}
+
+/// The depth map beside `photo`, and how to read it.
+pub fn find_depth(photo: &Path) -> Result<(PathBuf, DepthKind), String> {
+    let stem = photo
+        .file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    for (suffix, kind) in DEPTH_SIDECARS {
+        for ext in DEPTH_EXTENSIONS {
+            let candidate = photo.with_file_name(format!("{stem}{suffix}.{ext}"));
+            if candidate.is_file() {
+                return Ok((candidate, *kind));
+            }
+        }
+    }
+    Err(format!(
+        "no depth map for {}: put {stem}_depth.npy (or .png/.pfm/.exr; depth in scene \
+         units) or {stem}_disparity.png (relative disparity) beside it — there is no depth \
+         model to estimate it yet",
+        photo.display()
+    ))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn depth_sidecars_are_found_by_name_and_kind() {
+        let dir = tempfile::tempdir().unwrap();
+        let photo = dir.path().join("img.jpg");
+        let err = find_depth(&photo).unwrap_err();
+        assert!(err.contains("img_depth.npy"), "{err}");
+        std::fs::write(dir.path().join("img_disparity.png"), b"").unwrap();
+        assert_eq!(
+            find_depth(&photo).unwrap(),
+            (dir.path().join("img_disparity.png"), DepthKind::Disparity)
+        );
+        std::fs::write(dir.path().join("img_depth.exr"), b"").unwrap();
+        assert_eq!(find_depth(&photo).unwrap().1, DepthKind::Depth);
+    }
+}

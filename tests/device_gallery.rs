@@ -1,0 +1,352 @@
+//! Gallery hooks end to end through the binary: `convert` on a batch with corrupt photos,
+//! and `watch` with photos appearing while it runs, stopped by SIGTERM and restarted.
+
+use std::io::{BufRead, BufReader, Write};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::sync::mpsc::{self, Receiver};
+use std::time::Duration;
+
+use image::{Rgb, RgbImage};
+use serde_json::Value;
+
+/// Upper bound on waiting for the watcher; only a hang reaches it.
+const PATIENCE: Duration = Duration::from_secs(120);
+
+const TINY_BOARD: &str = r#"
+name = "tiny-4view"
+description = "4-view slanted lenticular, 48x32, for tests"
+width = 48
+height = 32
+views = 4
+quilt_cols = 2
+quilt_rows = 2
+view_width = 24
+view_height = 16
+view_cone_deg = 20.0
+subpixels = "rgb"
+
+[van_berkel]
+slant_deg = 18.434948822922010
+lens_pitch = 4.0
+offset = 0.5
+"#;
+
+fn reshader() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_reshader"))
+}
+
+fn board(dir: &Path) -> PathBuf {
+    let path = dir.join("tiny.toml");
+    std::fs::write(&path, TINY_BOARD).unwrap();
+    path
+}
+
+fn photo_bytes(seed: u32) -> Vec<u8> {
+    let image = RgbImage::from_fn(32, 24, |x, y| {
+        Rgb([(x * 8 + seed * 11) as u8, (y * 10) as u8, (seed * 37) as u8])
+    });
+    let mut bytes = Vec::new();
+    image
+        .write_to(
+            &mut std::io::Cursor::new(&mut bytes),
+            image::ImageFormat::Jpeg,
+        )
+        .unwrap();
+    bytes
+}
+
+/// A depth sidecar: a left-to-right ramp from 1 to 3 units.
+fn write_depth(photo: &Path) {
+    let (w, h) = (32usize, 24usize);
+    let data: Vec<f32> = (0..w * h)
+        .map(|i| 1.0 + 2.0 * (i % w) as f32 / w as f32)
+        .collect();
+    let stem = photo.file_stem().unwrap().to_string_lossy();
+    let path = photo.with_file_name(format!("{stem}_depth.npy"));
+    std::fs::write(path, reshader::npy::encode_f32(&[h, w], &data)).unwrap();
+}
+
+fn json_lines(stdout: &[u8]) -> Vec<Value> {
+    String::from_utf8_lossy(stdout)
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap_or_else(|e| panic!("not JSON: {l}: {e}")))
+        .collect()
+}
+
+fn status_of(lines: &[Value], status: &str) -> usize {
+    lines.iter().filter(|l| l["status"] == status).count()
+}
+
+/// Files whose names say they are temporaries or staging areas, anywhere under `dir`.
+fn leftovers(dir: &Path) -> Vec<PathBuf> {
+    let mut found = Vec::new();
+    for entry in std::fs::read_dir(dir).unwrap().flatten() {
+        let path = entry.path();
+        let name = entry.file_name().to_string_lossy().into_owned();
+        if name.contains(".tmp-") || name.contains(".staging-") {
+            found.push(path.clone());
+        }
+        if path.is_dir() {
+            found.extend(leftovers(&path));
+        }
+    }
+    found
+}
+
+#[test]
+fn batch_of_20_with_2_corrupt_converts_18_and_reports_2() {
+    let dir = tempfile::tempdir().unwrap();
+    let board = board(dir.path());
+    let photos_dir = dir.path().join("photos");
+    std::fs::create_dir(&photos_dir).unwrap();
+    let mut photos = Vec::new();
+    for i in 0..20u32 {
+        let path = photos_dir.join(format!("photo_{i:02}.jpg"));
+        let bytes = match i {
+            7 => photo_bytes(i)[..200].to_vec(), // truncated JPEG
+            13 => Vec::new(),                    // zero-length file
+            _ => photo_bytes(i),
+        };
+        std::fs::write(&path, bytes).unwrap();
+        write_depth(&path);
+        photos.push(path);
+    }
+    let out = dir.path().join("out");
+    let run = |extra: &[&str]| {
+        let output = reshader()
+            .arg("convert")
+            .args(&photos)
+            .arg("--board")
+            .arg(&board)
+            .arg("--out")
+            .arg(&out)
+            .arg("--json")
+            .args(extra)
+            .output()
+            .unwrap();
+        (output.status, json_lines(&output.stdout), output.stderr)
+    };
+
+    let (status, lines, stderr) = run(&[]);
+    let stderr = String::from_utf8_lossy(&stderr);
+    assert!(
+        !status.success(),
+        "a batch with failures must exit non-zero"
+    );
+    assert!(stderr.contains("2 of 20 photos failed"), "{stderr}");
+    assert_eq!(lines.len(), 20);
+    assert_eq!(status_of(&lines, "converted"), 18);
+    for (i, line) in lines.iter().enumerate() {
+        assert_eq!(line["photo"], photos[i].to_str().unwrap(), "order kept");
+        if i == 7 || i == 13 {
+            assert_eq!(line["status"], "failed");
+            let error = line["error"].as_str().unwrap();
+            assert!(error.contains(&format!("photo_{i:02}.jpg")), "{error}");
+            continue;
+        }
+        let panel = out.join(format!("photo_{i:02}/panel.png"));
+        let outputs: Vec<&str> = line["outputs"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|o| o.as_str().unwrap())
+            .collect();
+        assert!(outputs.contains(&panel.to_str().unwrap()), "{outputs:?}");
+        assert_eq!(
+            image::open(&panel).unwrap().to_rgb8().dimensions(),
+            (48, 32)
+        );
+        assert!(line["timings_ms"]["total"].as_f64().unwrap() > 0.0);
+        assert!(line["error"].is_null());
+    }
+    assert!(!out.join("photo_07").join("panel.png").exists());
+    assert!(leftovers(&out).is_empty(), "{:?}", leftovers(&out));
+
+    let (_, again, _) = run(&[]);
+    assert_eq!(
+        status_of(&again, "skipped"),
+        18,
+        "finished photos are not redone"
+    );
+    assert_eq!(status_of(&again, "failed"), 2);
+
+    let (_, forced, _) = run(&["--force"]);
+    assert_eq!(status_of(&forced, "converted"), 18);
+}
+
+#[test]
+fn convert_succeeds_with_exit_0_and_human_output() {
+    let dir = tempfile::tempdir().unwrap();
+    let board = board(dir.path());
+    let photo = dir.path().join("one.jpg");
+    std::fs::write(&photo, photo_bytes(1)).unwrap();
+    write_depth(&photo);
+    let output = reshader()
+        .args([
+            "convert",
+            photo.to_str().unwrap(),
+            "--board",
+            board.to_str().unwrap(),
+        ])
+        .output()
+        .unwrap();
+    assert!(
+        output.status.success(),
+        "{}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+    let stdout = String::from_utf8_lossy(&output.stdout);
+    assert!(stdout.starts_with("converted "), "{stdout}");
+    assert!(dir.path().join("one.reshader/panel.png").is_file());
+    assert!(dir.path().join("one.reshader/run.json").is_file());
+}
+
+/// Lines of a child's stdout, read on a thread so waits can be bounded.
+fn line_reader(child: &mut Child) -> Receiver<String> {
+    let stdout = child.stdout.take().unwrap();
+    let (tx, rx) = mpsc::channel();
+    std::thread::spawn(move || {
+        for line in BufReader::new(stdout).lines() {
+            let Ok(line) = line else { break };
+            if tx.send(line).is_err() {
+                break;
+            }
+        }
+    });
+    rx
+}
+
+/// The next report, as (photo file name, status).
+fn next_report(lines: &Receiver<String>) -> (String, String) {
+    let line = lines
+        .recv_timeout(PATIENCE)
+        .expect("watch reported nothing in time");
+    let v: Value = serde_json::from_str(&line).unwrap();
+    let photo = Path::new(v["photo"].as_str().unwrap())
+        .file_name()
+        .unwrap()
+        .to_string_lossy()
+        .into_owned();
+    (photo, v["status"].as_str().unwrap().to_string())
+}
+
+fn spawn_watch(dir: &Path, board: &Path, out: &Path, extra: &[&str]) -> Child {
+    reshader()
+        .arg("watch")
+        .arg(dir)
+        .arg("--board")
+        .arg(board)
+        .arg("--out")
+        .arg(out)
+        .args(["--json", "--settle-ms", "300", "--rescan-ms", "200"])
+        .args(extra)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap()
+}
+
+/// Sends SIGTERM and waits (bounded) for a clean exit.
+fn terminate(mut child: Child) -> String {
+    // SAFETY: kill(2) on the pid of a child this test spawned and has not reaped.
+    unsafe {
+        libc::kill(child.id() as libc::pid_t, libc::SIGTERM);
+    }
+    for _ in 0..(PATIENCE.as_millis() / 50) {
+        if let Some(status) = child.try_wait().unwrap() {
+            let mut stderr = String::new();
+            std::io::Read::read_to_string(child.stderr.as_mut().unwrap(), &mut stderr).unwrap();
+            assert!(status.success(), "watch exited with {status}: {stderr}");
+            return stderr;
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    child.kill().unwrap();
+    panic!("watch did not stop on SIGTERM");
+}
+
+#[test]
+fn watch_converts_photos_as_they_appear_and_survives_a_restart() {
+    let dir = tempfile::tempdir().unwrap();
+    let board = board(dir.path());
+    let inbox = dir.path().join("inbox");
+    let out = dir.path().join("out");
+    std::fs::create_dir(&inbox).unwrap();
+
+    // Already there when the watcher starts.
+    let a = inbox.join("a.jpg");
+    write_depth(&a);
+    std::fs::write(&a, photo_bytes(1)).unwrap();
+
+    let mut child = spawn_watch(&inbox, &board, &out, &[]);
+    let lines = line_reader(&mut child);
+    assert_eq!(next_report(&lines), ("a.jpg".into(), "converted".into()));
+
+    // Saved the way camera apps do: a hidden temporary renamed into place.
+    let b = inbox.join("b.jpg");
+    write_depth(&b);
+    let tmp = inbox.join(".b.jpg.partial");
+    std::fs::write(&tmp, photo_bytes(2)).unwrap();
+    std::fs::rename(&tmp, &b).unwrap();
+    assert_eq!(next_report(&lines), ("b.jpg".into(), "converted".into()));
+
+    // A slow writer that pauses longer than the settle time with the file open: the
+    // watcher must wait for the close, or it would convert half a JPEG and fail.
+    let c = inbox.join("c.jpg");
+    write_depth(&c);
+    let bytes = photo_bytes(3);
+    let mut file = std::fs::File::create(&c).unwrap();
+    file.write_all(&bytes[..bytes.len() / 2]).unwrap();
+    file.flush().unwrap();
+    std::thread::sleep(Duration::from_millis(1000));
+    file.write_all(&bytes[bytes.len() / 2..]).unwrap();
+    drop(file);
+    assert_eq!(next_report(&lines), ("c.jpg".into(), "converted".into()));
+
+    // A corrupt photo fails alone; the watcher carries on with the next.
+    let d = inbox.join("d.jpg");
+    write_depth(&d);
+    std::fs::write(&d, b"definitely not a jpeg").unwrap();
+    assert_eq!(next_report(&lines), ("d.jpg".into(), "failed".into()));
+    let e = inbox.join("e.png");
+    write_depth(&e);
+    image::load_from_memory(&photo_bytes(5))
+        .unwrap()
+        .save(inbox.join(".e.tmp.png"))
+        .unwrap();
+    std::fs::rename(inbox.join(".e.tmp.png"), &e).unwrap();
+    assert_eq!(next_report(&lines), ("e.png".into(), "converted".into()));
+
+    let stderr = terminate(child);
+    assert!(
+        stderr.contains("stopped: 4 converted, 0 skipped, 1 failed"),
+        "{stderr}"
+    );
+    for name in ["a", "b", "c", "e"] {
+        assert!(out.join(name).join("panel.png").is_file(), "{name}");
+    }
+    assert!(leftovers(&out).is_empty(), "{:?}", leftovers(&out));
+
+    // Restarted (polling this time): finished photos are skipped, not redone.
+    let mut child = spawn_watch(&inbox, &board, &out, &["--poll"]);
+    let lines = line_reader(&mut child);
+    let mut seen: Vec<(String, String)> = (0..5).map(|_| next_report(&lines)).collect();
+    seen.sort();
+    let expect = |n: &str, s: &str| (n.to_string(), s.to_string());
+    assert_eq!(
+        seen,
+        [
+            expect("a.jpg", "skipped"),
+            expect("b.jpg", "skipped"),
+            expect("c.jpg", "skipped"),
+            expect("d.jpg", "failed"),
+            expect("e.png", "skipped"),
+        ]
+    );
+    let stderr = terminate(child);
+    assert!(
+        stderr.contains("stopped: 0 converted, 4 skipped, 1 failed"),
+        "{stderr}"
+    );
+}

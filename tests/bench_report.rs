@@ -1,0 +1,193 @@
+//! `reshader bench`: the table, JSON and comparison logic on hand-made reports, and a tiny
+//! real run that must report every stage row. No test looks at how long anything took.
+
+use std::path::PathBuf;
+
+use reshader::bench::report::{self, Case, NaiveRow, PeerRow, Report, Stat, StageRow};
+use reshader::bench::{self as bench, BenchArgs};
+use reshader::manifest::Precision;
+
+fn stat(median: f64) -> Stat {
+    Stat {
+        median_ms: median,
+        min_ms: median * 0.9,
+        max_ms: median * 1.2,
+        runs: 3,
+    }
+}
+
+fn case(board: &str, scale: f64, ldi: bool) -> Case {
+    let stages = report::STAGES
+        .iter()
+        .map(|&s| StageRow {
+            stage: s.into(),
+            detail: format!("{s} detail"),
+            time: (s != "LDI build + inpainting" || ldi).then(|| stat(10.0 * scale)),
+        })
+        .collect();
+    Case {
+        photo: "photo.jpg".into(),
+        photo_size: [400, 300],
+        board: board.into(),
+        views: 48,
+        view_size: [420, 560],
+        stages,
+        total: Some(stat(100.0 * scale)),
+        peak_rss_mib: Some(123.0),
+    }
+}
+
+fn report(cases: Vec<Case>) -> Report {
+    Report {
+        format: report::FORMAT.into(),
+        command: "reshader bench".into(),
+        profile: "release".into(),
+        threads: 2,
+        runs: 3,
+        load_average: Some([1.5, 1.0, 0.5]),
+        reshade_model: "reshade-fixture-int8 — FIXTURE STAND-IN".into(),
+        depth_model: "tiefenrausch-int8".into(),
+        cases,
+        peak_rss_mib: Some(456.0),
+        peer: vec![PeerRow {
+            model: "depth tiefenrausch-int8".into(),
+            shapes: "image 1×3×288×384".into(),
+            tract: Some(stat(300.0)),
+            onnxruntime: Some(stat(100.0)),
+            note: None,
+        }],
+        naive: vec![NaiveRow {
+            board: "looking-glass-portrait".into(),
+            views: 48,
+            network_size: [448, 576],
+            per_view: Some(stat(1000.0)),
+            timed_views: 2,
+            runtime_ms: Some(480.0),
+            note: None,
+        }],
+        wall_s: 12.0,
+    }
+}
+
+#[test]
+fn stats_take_the_median_min_and_max() {
+    let s = Stat::of(&[5.0, 1.0, 3.0]).unwrap();
+    assert_eq!((s.median_ms, s.min_ms, s.max_ms, s.runs), (3.0, 1.0, 5.0, 3));
+    assert_eq!(Stat::of(&[4.0, 1.0, 2.0, 3.0]).unwrap().median_ms, 2.5);
+    assert!(Stat::of(&[]).is_none());
+}
+
+#[test]
+fn stage_stats_sum_repeated_stages_and_mark_missing_ones() {
+    let runs = vec![
+        vec![("decode", 2.0), ("weave", 1.0), ("weave", 1.0)],
+        vec![("decode", 4.0), ("weave", 3.0)],
+    ];
+    let (rows, total) = bench::stage_stats(&runs);
+    assert_eq!(rows.len(), report::STAGES.len());
+    let get = |name: &str| rows.iter().find(|(s, _)| *s == name).unwrap().1;
+    assert_eq!(get("decode").unwrap().median_ms, 3.0);
+    assert_eq!(get("weave").unwrap().min_ms, 2.0);
+    assert!(get("LDI build + inpainting").is_none());
+    assert_eq!(total.unwrap().median_ms, 6.0);
+}
+
+#[test]
+fn markdown_lists_every_stage_and_marks_unbuilt_ones() {
+    let md = report(vec![case("looking-glass-portrait", 1.0, false)]).to_markdown();
+    for stage in report::STAGES {
+        assert!(md.contains(&format!("| {stage} |")), "missing row {stage}");
+    }
+    assert!(md.contains("| LDI build + inpainting | n/a (not built) |"));
+    assert!(md.contains("FIXTURE STAND-IN"));
+    // Peer ratio and naive saving are computed from the rows, not copied.
+    assert!(md.contains("| 3.00× |"), "{md}");
+    assert!(md.contains("| 48000 | 480 | 100× |"), "{md}");
+    assert!(md.contains("456 MiB"));
+}
+
+#[test]
+fn json_round_trips_and_rejects_other_formats() {
+    let r = report(vec![case("generic-8view", 1.0, true)]);
+    let back = Report::from_json("x.json", &r.to_json()).unwrap();
+    assert_eq!(back, r);
+    let other = r.to_json().replace(report::FORMAT, "something-else/9");
+    let err = Report::from_json("old.json", &other).unwrap_err().to_string();
+    assert!(err.contains("old.json") && err.contains("something-else/9"), "{err}");
+    let err = Report::from_json("bad.json", "{").unwrap_err().to_string();
+    assert!(err.contains("bad.json"), "{err}");
+}
+
+#[test]
+fn compare_reports_the_change_per_stage() {
+    let before = report(vec![
+        case("looking-glass-portrait", 1.0, false),
+        case("looking-glass-go", 1.0, true),
+    ]);
+    let now = report(vec![
+        case("looking-glass-portrait", 2.0, true),
+        case("generic-8view", 1.0, true),
+    ]);
+    let text = now.compare(&before);
+    assert!(text.contains("| photo.jpg / looking-glass-portrait | decode | 10.0 | 20.0 | +100.0% (2.00×) |"), "{text}");
+    assert!(text.contains("| photo.jpg / looking-glass-portrait | LDI build + inpainting | n/a | 20.0 | newly built |"), "{text}");
+    assert!(text.contains("| **total** | 100 | 200 | +100.0% (2.00×) |"), "{text}");
+    assert!(text.contains("photo.jpg / generic-8view | (all) | not in previous"), "{text}");
+    assert!(text.contains("photo.jpg / looking-glass-go | (all) | | not in this run"), "{text}");
+}
+
+fn tiny_args() -> BenchArgs {
+    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
+    BenchArgs {
+        model: root.join("models/fixtures"),
+        precision: Precision::Int8,
+        depth_precision: Precision::Int8,
+        photo: root.join("examples/pumpkin/pumpkin.jpg"),
+        synthetic: (96, 64),
+        boards: vec!["generic-8view".into()],
+        runs: 1,
+        threads: 1,
+        out: Vec::new(),
+        compare: None,
+        no_peer: true,
+        no_naive: true,
+        naive_views: 1,
+        python: None,
+        cache: None,
+    }
+}
+
+#[test]
+fn a_tiny_run_reports_every_stage_for_both_photos() {
+    let r = bench::run(&tiny_args(), "test").unwrap();
+    assert_eq!(r.cases.len(), 2);
+    assert!(r.reshade_model.contains("FIXTURE STAND-IN"), "{}", r.reshade_model);
+    for case in &r.cases {
+        let names: Vec<&str> = case.stages.iter().map(|s| s.stage.as_str()).collect();
+        assert_eq!(names, report::STAGES);
+        for row in &case.stages {
+            // Only the LDI builder is missing from this runtime; everything else ran.
+            assert_eq!(row.time.is_none(), row.stage == "LDI build + inpainting", "{row:?}");
+        }
+        assert_eq!(case.views, 8);
+        assert!(case.total.is_some());
+    }
+    assert_eq!(r.cases[1].photo_size, [96, 64]);
+    assert!(r.peak_rss_mib.is_some_and(|m| m > 0.0));
+    assert!(r.peer.is_empty() && r.naive.is_empty());
+}
+
+#[test]
+fn bad_options_fail_before_measuring() {
+    let mut args = tiny_args();
+    args.out = vec![PathBuf::from("bench.txt")];
+    let err = bench::run(&args, "test").err().unwrap().to_string();
+    assert!(err.contains("bench.txt") && err.contains(".md or .json"), "{err}");
+    let mut args = tiny_args();
+    args.boards = vec!["no-such-board".into()];
+    assert!(bench::run(&args, "test").is_err());
+    let mut args = tiny_args();
+    args.compare = Some(PathBuf::from("/nonexistent/previous.json"));
+    let err = bench::main(&args, "test").err().unwrap().to_string();
+    assert!(err.contains("/nonexistent/previous.json"), "{err}");
+}

@@ -98,8 +98,7 @@ impl Relocator for MeshWarp {
             view.intrinsics.width as usize,
             view.intrinsics.height as usize,
         );
-        let parallax_scale = view.intrinsics.fx.max(view.intrinsics.fy)
-            * view.centre.iter().map(|c| c * c).sum::<f64>().sqrt();
+        let scale = view.intrinsics.fx / source.fx;
         let (w, h) = (depth.width(), depth.height());
         for y in 0..h.saturating_sub(1) {
             for x in 0..w.saturating_sub(1) {
@@ -110,14 +109,10 @@ impl Relocator for MeshWarp {
                     (y + 1) * w + x + 1,
                 );
                 for tri in [[a, b, c], [b, d, c]] {
-                    let source_inv_z = tri.map(|i| 1.0 / f64::from(depth.data()[i]));
-                    let spread = source_inv_z.iter().copied().fold(f64::MIN, f64::max)
-                        - source_inv_z.iter().copied().fold(f64::MAX, f64::min);
-                    if spread * parallax_scale > self.cut_px {
-                        continue;
-                    }
                     let corners = tri.map(|i| vertices[i]);
-                    if corners.iter().all(|v| v.valid) {
+                    if corners.iter().all(|v| v.valid)
+                        && stretch(&corners, tri, w, scale) <= self.cut_px
+                    {
                         let tri_colours = tri.map(|i| pixel(colours, i, w));
                         frame.rasterise(corners, tri_colours);
                     }
@@ -127,6 +122,20 @@ impl Relocator for MeshWarp {
         let horizontal = view.centre[0].abs() >= view.centre[1].abs();
         Ok(frame.fill_holes_from_background(horizontal))
     }
+}
+
+/// How much the view pulls a triangle's corners apart, in view pixels: the spread of
+/// their parallax (view position minus source position at the view's scale). Exact for
+/// sideways cameras; for cameras moving along z it ignores the small zoom of the sheared
+/// projection, which does not cut through objects.
+fn stretch(corners: &[Vertex; 3], tri: [usize; 3], width: usize, scale: f64) -> f64 {
+    let parallax = |k: usize| {
+        let (x, y) = ((tri[k] % width) as f64, (tri[k] / width) as f64);
+        (corners[k].u - x * scale, corners[k].v - y * scale)
+    };
+    let p = [parallax(0), parallax(1), parallax(2)];
+    let dist = |a: (f64, f64), b: (f64, f64)| (a.0 - b.0).hypot(a.1 - b.1);
+    dist(p[0], p[1]).max(dist(p[1], p[2])).max(dist(p[0], p[2]))
 }
 
 fn check_sizes(

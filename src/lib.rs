@@ -8,7 +8,9 @@
 
 pub mod capture;
 pub mod depth;
+pub mod depth_refine;
 pub mod display;
+pub mod embedded_depth;
 pub mod gallery;
 pub mod npy;
 pub mod output;

@@ -6,12 +6,17 @@
 //! the pixels to the view, and [`pipeline`] runs them in order and hands the views to the
 //! `interleave` crate; [`output`] and [`record`] write the results and run.json.
 
+pub mod bench;
+pub mod bench_reshade;
 pub mod capture;
 pub mod depth;
+pub mod depth_net;
 pub mod depth_refine;
 pub mod display;
 pub mod embedded_depth;
+pub mod engine;
 pub mod gallery;
+pub mod manifest;
 pub mod npy;
 pub mod output;
 pub mod pfm;
@@ -20,6 +25,7 @@ pub mod pipeline;
 pub mod record;
 pub mod relocate;
 pub mod reshade;
+pub mod reshade_net;
 pub mod views;
 
 pub use interleave;

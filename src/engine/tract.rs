@@ -1,0 +1,231 @@
+//! The default engine: tract, pure Rust. Each plan is the graph optimised for one set of
+//! concrete input shapes; runs use a private rayon pool for tract's matrix products.
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use tract_onnx::prelude::multithread::{multithread_tract_scope, Executor};
+use tract_onnx::prelude::*;
+use tract_onnx::tract_core::plan::SimpleState;
+
+use super::{check_names, fp16, Engine, EngineError, ModelSource, Plan, Tensor};
+use crate::manifest::Precision;
+
+const NAME: &str = "tract";
+
+pub struct TractEngine {
+    threads: usize,
+    executor: Executor,
+}
+
+impl TractEngine {
+    pub fn new(threads: usize) -> Self {
+        let threads = threads.max(1);
+        let executor = if threads > 1 {
+            Executor::multithread_with_name(threads, "reshader-tract")
+        } else {
+            Executor::SingleThread
+        };
+        Self { threads, executor }
+    }
+}
+
+impl Engine for TractEngine {
+    fn name(&self) -> &'static str {
+        NAME
+    }
+
+    fn threads(&self) -> usize {
+        self.threads
+    }
+
+    fn plan(
+        &self,
+        model: ModelSource<'_>,
+        shapes: &[(&str, Vec<usize>)],
+        outputs: &[&str],
+    ) -> Result<Arc<dyn Plan>, EngineError> {
+        let (typed, inputs, order) = optimized(model, shapes, outputs)?;
+        let runnable = typed
+            .into_runnable()
+            .map_err(|e| load_error(model.path, e))?;
+        Ok(Arc::new(TractPlan {
+            path: model.path.to_owned(),
+            inputs,
+            order,
+            runnable,
+            executor: self.executor.clone(),
+        }))
+    }
+}
+
+impl TractEngine {
+    /// Milliseconds spent per operator type in one run of the optimised graph (after a
+    /// warm-up run), largest first: where tract spends its time on our graphs.
+    pub fn profile(
+        &self,
+        model: ModelSource<'_>,
+        inputs: &[(&str, &Tensor)],
+        outputs: &[&str],
+    ) -> Result<Vec<(String, f64)>, EngineError> {
+        let shapes: Vec<(&str, Vec<usize>)> =
+            inputs.iter().map(|(n, t)| (*n, t.shape.clone())).collect();
+        let (typed, names, _) = optimized(model, &shapes, outputs)?;
+        let runnable = typed
+            .into_runnable()
+            .map_err(|e| load_error(model.path, e))?;
+        let plan = TractPlan {
+            path: model.path.to_owned(),
+            inputs: names,
+            order: Vec::new(),
+            runnable,
+            executor: self.executor.clone(),
+        };
+        let run = |e: TractError| run_error(model.path, e);
+        let mut times: std::collections::HashMap<String, f64> = Default::default();
+        for pass in 0..2 {
+            let values = plan.values(inputs)?;
+            let mut state = SimpleState::new(&plan.runnable).map_err(run)?;
+            multithread_tract_scope(self.executor.clone(), || {
+                state.run_plan_with_eval(values, |ctx, op_state, node, input| {
+                    let started = std::time::Instant::now();
+                    let out = tract_onnx::tract_core::plan::eval(ctx, op_state, node, input);
+                    if pass == 1 {
+                        *times.entry(node.op.name().to_string()).or_default() +=
+                            started.elapsed().as_secs_f64() * 1e3;
+                    }
+                    out
+                })
+            })
+            .map_err(run)?;
+        }
+        let mut sorted: Vec<(String, f64)> = times.into_iter().collect();
+        sorted.sort_by(|a, b| b.1.total_cmp(&a.1));
+        Ok(sorted)
+    }
+}
+
+fn load_error(path: &Path, e: TractError) -> EngineError {
+    EngineError::Load {
+        engine: NAME,
+        path: path.to_owned(),
+        message: format!("{e:#}"),
+    }
+}
+
+/// The graph optimised for `shapes`, its input names in graph order, and where each
+/// requested output sits among the graph's outputs.
+fn optimized(
+    model: ModelSource<'_>,
+    shapes: &[(&str, Vec<usize>)],
+    outputs: &[&str],
+) -> Result<(TypedModel, Vec<String>, Vec<usize>), EngineError> {
+    let load = |e: TractError| load_error(model.path, e);
+    let onnx = tract_onnx::onnx();
+    let mut proto = onnx
+        .proto_model_for_read(&mut &*model.bytes)
+        .map_err(load)?;
+    if model.precision == Precision::Fp16 {
+        let n = fp16::widen_to_f32(&mut proto);
+        log::debug!("{}: widened {n} fp16 tensors to f32", model.path.display());
+    }
+    let mut graph = onnx.model_for_proto_model(&proto).map_err(load)?;
+    let names = input_names(&graph).map_err(load)?;
+    let wanted: Vec<&str> = shapes.iter().map(|(n, _)| *n).collect();
+    check_names(model.path, "inputs", &names, &wanted)?;
+    for (ix, name) in names.iter().enumerate() {
+        let shape = &shapes
+            .iter()
+            .find(|(n, _)| n == name)
+            .expect("names checked")
+            .1;
+        graph
+            .set_input_fact(ix, f32::fact(shape).into())
+            .map_err(load)?;
+    }
+    let graph_outputs = output_names(&graph).map_err(load)?;
+    check_names(model.path, "outputs", &graph_outputs, outputs)?;
+    let order = outputs
+        .iter()
+        .map(|o| {
+            graph_outputs
+                .iter()
+                .position(|g| g == o)
+                .expect("names checked")
+        })
+        .collect();
+    let typed = graph.into_optimized().map_err(load)?;
+    Ok((typed, names, order))
+}
+
+fn input_names(graph: &InferenceModel) -> TractResult<Vec<String>> {
+    Ok(graph
+        .input_outlets()?
+        .iter()
+        .map(|o| graph.node(o.node).name.clone())
+        .collect())
+}
+
+fn output_names(graph: &InferenceModel) -> TractResult<Vec<String>> {
+    Ok(graph
+        .output_outlets()?
+        .iter()
+        .map(|&o| {
+            graph
+                .outlet_label(o)
+                .map_or_else(|| graph.node(o.node).name.clone(), str::to_owned)
+        })
+        .collect())
+}
+
+struct TractPlan {
+    path: PathBuf,
+    inputs: Vec<String>,
+    order: Vec<usize>,
+    runnable: Arc<TypedRunnableModel>,
+    executor: Executor,
+}
+
+impl TractPlan {
+    fn values(&self, inputs: &[(&str, &Tensor)]) -> Result<TVec<TValue>, EngineError> {
+        let run = |e: TractError| run_error(&self.path, e);
+        let mut values = TVec::new();
+        for name in &self.inputs {
+            let (_, t) = inputs
+                .iter()
+                .find(|(n, _)| n == name)
+                .ok_or_else(|| run(TractError::msg(format!("input {name:?} was not given"))))?;
+            let tensor = tract_onnx::prelude::Tensor::from_shape(&t.shape, &t.data).map_err(run)?;
+            values.push(tensor.into_tvalue());
+        }
+        Ok(values)
+    }
+}
+
+impl Plan for TractPlan {
+    fn run(&self, inputs: &[(&str, &Tensor)]) -> Result<Vec<Tensor>, EngineError> {
+        let run = |e: TractError| run_error(&self.path, e);
+        let values = self.values(inputs)?;
+        let outputs = multithread_tract_scope(self.executor.clone(), || self.runnable.run(values))
+            .map_err(run)?;
+        self.order
+            .iter()
+            .map(|&ix| {
+                let out = &outputs[ix];
+                let view = out.to_plain_array_view::<f32>().map_err(run)?;
+                Ok(Tensor::new(
+                    out.shape().to_vec(),
+                    view.iter().copied().collect(),
+                ))
+            })
+            .collect()
+    }
+}
+
+fn run_error(path: &Path, e: TractError) -> EngineError {
+    EngineError::Run {
+        engine: NAME,
+        path: path.to_owned(),
+        message: format!("{e:#}"),
+    }
+}

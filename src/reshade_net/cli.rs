@@ -1,0 +1,102 @@
+//! Command-line options that choose and tune the reshading network, shared by every
+//! subcommand that reshades (flattened into their clap arguments).
+
+use std::path::{Path, PathBuf};
+
+use crate::engine;
+use crate::manifest::Precision;
+use crate::reshade::{IdentityReshader, Reshader};
+
+use super::{NetError, NetOptions, NetReshader};
+
+/// Where the shipped reshading models live, relative to the working directory or the
+/// source tree the binary was built from.
+pub const DEFAULT_MODEL_DIR: &str = "models/reshade";
+
+#[derive(Clone, Debug, clap::Args)]
+pub struct ReshadeArgs {
+    /// Reshading model: a manifest (.json; the single graph, or either half of an
+    /// encoder/decoder pair) or a directory of them. Default: models/reshade, or
+    /// $RESHADER_MODEL.
+    #[arg(long)]
+    pub model: Option<PathBuf>,
+    /// Model precision to load (int8 and fp16 need the model exported at that precision;
+    /// fp16 weights are computed in f32 on CPUs without fp16 arithmetic).
+    #[arg(long, default_value = "fp32", value_parser = parse_precision)]
+    pub precision: Precision,
+    /// Inference engine: tract (built in), or ort (onnxruntime from $ORT_DYLIB_PATH; needs
+    /// a build with --features ort).
+    #[arg(long, default_value = "tract")]
+    pub engine: String,
+    /// Working resolution of the network as a fraction of the photo's; the predicted
+    /// residual is upsampled to full resolution.
+    #[arg(long, default_value_t = 1.0)]
+    pub reshade_scale: f64,
+    /// Run the network for this many views and interpolate the residual for the others
+    /// (default: every view).
+    #[arg(long)]
+    pub key_views: Option<usize>,
+    /// Views per decoder call.
+    #[arg(long, default_value_t = 1)]
+    pub reshade_batch: usize,
+    /// Views decoded at the same time, each on its own thread (the engine then uses
+    /// --reshade-threads / this many threads per view).
+    #[arg(long, default_value_t = 1)]
+    pub parallel_views: usize,
+    /// Threads for reshading (default: every core).
+    #[arg(long)]
+    pub reshade_threads: Option<usize>,
+}
+
+fn parse_precision(s: &str) -> Result<Precision, String> {
+    s.parse()
+}
+
+impl ReshadeArgs {
+    pub fn options(&self) -> NetOptions {
+        NetOptions {
+            scale: self.reshade_scale,
+            key_views: self.key_views,
+            batch: self.reshade_batch,
+            parallel_views: self.parallel_views,
+            max_offset: None,
+        }
+    }
+
+    /// The reshader these options ask for. Without `--model`, a missing default model
+    /// directory falls back to the identity (with a warning); an explicit one must load.
+    pub fn build(&self) -> Result<Box<dyn Reshader + Send + Sync>, NetError> {
+        let chosen = self
+            .model
+            .clone()
+            .or_else(|| std::env::var_os("RESHADER_MODEL").map(PathBuf::from));
+        let path = match chosen {
+            Some(path) => path,
+            None => match default_model_dir() {
+                Some(dir) => dir,
+                None => {
+                    log::warn!(
+                        "no reshading model at {DEFAULT_MODEL_DIR} (pass --model): views keep the photo's shading"
+                    );
+                    return Ok(Box::new(IdentityReshader));
+                }
+            },
+        };
+        let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+        let threads = self.reshade_threads.unwrap_or(cores);
+        let per_view = (threads / self.parallel_views.max(1)).max(1);
+        let engine = engine::by_name(&self.engine, per_view)?;
+        let net = NetReshader::load(&path, self.precision, engine, self.options())?;
+        log::info!("reshading with {}", net.description());
+        Ok(Box::new(net))
+    }
+}
+
+fn default_model_dir() -> Option<PathBuf> {
+    [
+        PathBuf::from(DEFAULT_MODEL_DIR),
+        Path::new(env!("CARGO_MANIFEST_DIR")).join(DEFAULT_MODEL_DIR),
+    ]
+    .into_iter()
+    .find(|p| p.is_dir())
+}

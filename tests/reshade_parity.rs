@@ -1,0 +1,165 @@
+//! Parity with the fixture's PyTorch reference (models/fixtures/parity.json): the
+//! runtime, fed the closed-form photo and depth, must reproduce the network's output for
+//! each precision and graph form, and return the photo at the input camera as the
+//! fixture is known to (its manifest records ~6e-4 at camera 0).
+
+mod reshade_support;
+
+use reshade_support::{
+    base64, f32s, fixture_dir, image_from_planar, manifest_path, max_abs_diff, tract,
+};
+use reshader::depth::DepthMap;
+use reshader::engine::Engine;
+use reshader::manifest::{Precision, Task};
+use reshader::photo::SrgbImage;
+use reshader::reshade_net::{NetOptions, NetReshader};
+use serde_json::Value;
+use std::sync::Arc;
+
+fn parity() -> Value {
+    let text = std::fs::read_to_string(fixture_dir().join("parity.json")).unwrap();
+    let p: Value = serde_json::from_str(&text).unwrap();
+    assert_eq!(p["format"], "reshader-parity/1");
+    p
+}
+
+/// The parity inputs, built from the closed forms parity.json states.
+fn inputs(p: &Value) -> (SrgbImage, DepthMap) {
+    let (h, w) = (
+        p["height"].as_u64().unwrap() as usize,
+        p["width"].as_u64().unwrap() as usize,
+    );
+    let (hf, wf) = (h as f32, w as f32);
+    let s = 0.15 * hf.min(wf);
+    let mut planar = vec![0.0f32; 3 * h * w];
+    let mut depth = vec![0.0f32; h * w];
+    for y in 0..h {
+        for x in 0..w {
+            let (xf, yf) = (x as f32, y as f32);
+            let blob =
+                (-((xf - 0.4 * wf).powi(2) + (yf - 0.45 * hf).powi(2)) / (2.0 * s * s)).exp();
+            for c in 0..3 {
+                planar[(c * h + y) * w + x] = 0.1 + 0.1 * c as f32 + 0.2 * xf / wf + 0.5 * blob;
+            }
+            depth[y * w + x] = 1.5 + xf / wf + yf / hf;
+        }
+    }
+    let sum: f64 = planar.iter().map(|&v| f64::from(v)).sum();
+    let expected = p["input"]["image_sum"].as_f64().unwrap();
+    assert!(
+        (sum - expected).abs() < 1e-3 * expected,
+        "image sum {sum} vs {expected}"
+    );
+    (
+        image_from_planar(&[1, 3, h, w], &planar),
+        DepthMap::new(w, h, depth),
+    )
+}
+
+fn reference(p: &Value, case: &Value, key: &str) -> SrgbImage {
+    let (h, w) = (
+        p["height"].as_u64().unwrap() as usize,
+        p["width"].as_u64().unwrap() as usize,
+    );
+    let data: Vec<f32> = f32s(&base64(case[key].as_str().unwrap()))
+        .iter()
+        .map(|v| v.clamp(0.0, 1.0))
+        .collect();
+    image_from_planar(&[1, 3, h, w], &data)
+}
+
+fn check(task: Task, precision: Precision, engine: Arc<dyn Engine>) {
+    let p = parity();
+    let spec = &p["precisions"][precision.to_string()];
+    let key = spec["reference"].as_str().unwrap();
+    let tolerance = spec["tolerance"].as_f64().unwrap() as f32;
+    let (image, depth) = inputs(&p);
+    let net = NetReshader::load(
+        &manifest_path(task, precision),
+        precision,
+        engine,
+        NetOptions::default(),
+    )
+    .unwrap();
+    let prepared = net.prepare_photo(&image, &depth).unwrap();
+    for case in p["cases"].as_array().unwrap() {
+        let camera: Vec<f64> = case["camera"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|v| v.as_f64().unwrap())
+            .collect();
+        let out = prepared
+            .reshade_views(&[[camera[0], camera[1], camera[2]]])
+            .unwrap()
+            .remove(0);
+        let d = max_abs_diff(&out, &reference(&p, case, key));
+        assert!(
+            d <= tolerance,
+            "{task} {precision} camera {camera:?}: {d} > {tolerance}"
+        );
+    }
+}
+
+#[test]
+fn fp32_single_graph_matches_pytorch() {
+    check(Task::Reshade, Precision::Fp32, tract(1));
+}
+
+#[test]
+fn fp32_encoder_decoder_matches_pytorch() {
+    check(Task::ReshadeEncoder, Precision::Fp32, tract(2));
+}
+
+#[test]
+fn fp16_matches_pytorch_within_its_tolerance() {
+    check(Task::ReshadeEncoder, Precision::Fp16, tract(1));
+    check(Task::Reshade, Precision::Fp16, tract(1));
+}
+
+#[test]
+fn int8_matches_the_fake_quantised_network() {
+    check(Task::ReshadeEncoder, Precision::Int8, tract(1));
+    check(Task::Reshade, Precision::Int8, tract(1));
+}
+
+#[test]
+fn the_input_camera_returns_the_photo() {
+    let p = parity();
+    let known = p["camera_dependence"]["identity_max_abs_at_camera_0"]
+        .as_f64()
+        .unwrap() as f32;
+    let (image, depth) = inputs(&p);
+    let path = manifest_path(Task::ReshadeEncoder, Precision::Fp32);
+    let net = NetReshader::load(&path, Precision::Fp32, tract(1), NetOptions::default()).unwrap();
+    let out = net
+        .prepare_photo(&image, &depth)
+        .unwrap()
+        .reshade_views(&[[0.0; 3]])
+        .unwrap()
+        .remove(0);
+    let d = max_abs_diff(&out, &image);
+    assert!(
+        d <= known + 1e-5,
+        "camera 0 changes the photo by {d} (fixture: {known})"
+    );
+    assert!(d < 2e-3, "camera 0 changes the photo by {d}");
+}
+
+#[cfg(feature = "ort")]
+mod onnxruntime {
+    use super::*;
+
+    fn ort() -> Arc<dyn Engine> {
+        reshader::engine::by_name("ort", 1)
+            .expect("the ort feature's tests need ORT_DYLIB_PATH set to a libonnxruntime.so")
+    }
+
+    #[test]
+    fn ort_matches_pytorch_for_every_precision_and_form() {
+        for precision in [Precision::Fp32, Precision::Fp16, Precision::Int8] {
+            check(Task::Reshade, precision, ort());
+            check(Task::ReshadeEncoder, precision, ort());
+        }
+    }
+}

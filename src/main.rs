@@ -1,7 +1,7 @@
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
-use anyhow::{bail, Result};
+use anyhow::Result;
 use clap::{Args, Parser, Subcommand, ValueEnum};
 
 use reshader::depth::DepthKind;
@@ -54,8 +54,9 @@ enum Command {
     /// Render all views of a board and write views/, the quilt, panel.png, sbs.png and run.json.
     #[command(long_about = RENDER_ABOUT)]
     Render(RenderArgs),
-    /// Estimate depth for a photo (needs a depth model; none is shipped yet).
-    Depth(DepthArgs),
+    /// Estimate depth for a photo: the depth it carries, or the depth network.
+    #[command(long_about = reshader::depth_net::cli::DEPTH_ABOUT)]
+    Depth(reshader::depth_net::cli::DepthCommandArgs),
     /// Reshade the photo for a novel camera, in the input camera's frame.
     #[command(long_about = RESHADE_ABOUT)]
     Reshade(SingleViewArgs),
@@ -151,13 +152,6 @@ struct RenderArgs {
     #[arg(long, default_value_t = true)]
     headless: bool,
     /// Output directory.
-    #[arg(long)]
-    out: PathBuf,
-}
-
-#[derive(Args)]
-struct DepthArgs {
-    photo: PathBuf,
     #[arg(long)]
     out: PathBuf,
 }
@@ -263,11 +257,10 @@ fn main() -> ExitCode {
 fn run(command: Command) -> Result<()> {
     match command {
         Command::Render(args) => render(args),
-        Command::Depth(args) => bail!(
-            "no depth model yet — pass --depth to render/view/reshade (cannot estimate depth for {} into {})",
-            args.photo.display(),
-            args.out.display()
-        ),
+        Command::Depth(args) => {
+            println!("{}", reshader::depth_net::cli::run_depth(&args)?);
+            Ok(())
+        }
         Command::Reshade(args) => reshade(args),
         Command::View(args) => view(args),
         Command::Weave(args) => weave(args),

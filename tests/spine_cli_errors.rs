@@ -236,14 +236,6 @@ fn failed_render_keeps_an_earlier_output_intact() {
 }
 
 #[test]
-fn depth_command_needs_a_model() {
-    let case = Case::new();
-    let out = case.path("depth-out.npy");
-    let result = run(&["depth", &case.photo, "--out", &out]);
-    case.assert_failed_cleanly(&result, &["no depth model yet", "pass --depth"]);
-}
-
-#[test]
 fn view_with_unknown_output_type() {
     let case = Case::new();
     let out = case.path("view.gif");

@@ -67,6 +67,15 @@ enum Command {
     Weave(WeaveArgs),
     /// List the built-in boards.
     Boards,
+    /// Convert photos for a gallery: one output folder each, skipping finished ones.
+    #[command(long_about = reshader::gallery::cli::CONVERT_ABOUT)]
+    Convert(reshader::gallery::cli::ConvertArgs),
+    /// Convert photos as they appear in a folder, until SIGINT/SIGTERM.
+    #[command(long_about = reshader::gallery::cli::WATCH_ABOUT)]
+    Watch(reshader::gallery::cli::WatchArgs),
+    /// Show a live camera on the panel: capture, views, weave, framebuffer or PNGs.
+    #[command(long_about = reshader::capture::live::LIVE_ABOUT)]
+    Live(reshader::capture::live::LiveArgs),
 }
 
 const RENDER_ABOUT: &str = "\
@@ -264,6 +273,9 @@ fn run(command: Command) -> Result<()> {
         Command::Reshade(args) => reshade(args),
         Command::View(args) => view(args),
         Command::Weave(args) => weave(args),
+        Command::Convert(args) => Ok(reshader::gallery::cli::run_convert(&args)?),
+        Command::Watch(args) => Ok(reshader::gallery::cli::run_watch(&args)?),
+        Command::Live(args) => Ok(reshader::capture::live::run_live(&args)?),
         Command::Boards => {
             list_boards();
             Ok(())

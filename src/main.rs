@@ -9,7 +9,6 @@ use reshader::interleave::{Blend, Board};
 use reshader::output;
 use reshader::pipeline::{self, Product, RenderOptions, Scene, ViewRequest};
 use reshader::relocate::MeshWarp;
-use reshader::reshade::IdentityReshader;
 
 const ABOUT: &str = "Turn one photo and its depth into the views, quilt and woven frame of a \
 lenticular light-field panel.";
@@ -131,6 +130,8 @@ struct SceneArgs {
     /// Depth of the zero-parallax plane, in depth-map units [default: robust middle depth].
     #[arg(long, allow_negative_numbers = true)]
     focus: Option<f64>,
+    #[command(flatten)]
+    reshade: reshader::reshade_net::cli::ReshadeArgs,
 }
 
 #[derive(Args)]
@@ -284,6 +285,7 @@ fn run(command: Command) -> Result<()> {
 }
 
 fn render(args: RenderArgs) -> Result<()> {
+    let reshader = args.scene.reshade.build()?;
     let board = pipeline::load_board(&args.board, args.calibration.as_deref())?;
     let board_file = Path::new(&args.board)
         .is_file()
@@ -303,7 +305,7 @@ fn render(args: RenderArgs) -> Result<()> {
         sbs_pair: args.sbs_pair,
         out_dir: args.out,
     };
-    let record = pipeline::render(&opts, &IdentityReshader, &MeshWarp::default())?;
+    let record = pipeline::render(&opts, &*reshader, &MeshWarp::default())?;
     println!(
         "{}: {} views, wrote {} files to {}",
         opts.board.name(),
@@ -331,7 +333,8 @@ fn reshade(args: SingleViewArgs) -> Result<()> {
         camera: args.camera,
         focus: args.scene.focus,
     };
-    let image = pipeline::reshade_photo(&req, &IdentityReshader)?;
+    let reshader = args.scene.reshade.build()?;
+    let image = pipeline::reshade_photo(&req, &*reshader)?;
     pipeline::write_image(&args.out, &image)?;
     Ok(())
 }
@@ -345,8 +348,12 @@ fn view(args: ViewArgs) -> Result<()> {
         camera: single.camera,
         focus: single.scene.focus,
     };
-    let reshader =
-        (!args.no_reshade).then_some(&IdentityReshader as &dyn reshader::reshade::Reshader);
+    let reshader = if args.no_reshade {
+        None
+    } else {
+        Some(single.scene.reshade.build()?)
+    };
+    let reshader = reshader.as_deref().map(|r| r as &dyn reshader::reshade::Reshader);
     let image = pipeline::render_view(&req, reshader, &MeshWarp::default())?;
     pipeline::write_image(&single.out, &image)?;
     Ok(())

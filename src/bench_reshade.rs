@@ -493,7 +493,7 @@ mod tests {
     #[test]
     fn conv_count_matches_the_toolchain_for_the_tiny_net() {
         // The encoder of widths 4,8,8,16,16,16 (one conv per block) at 64x96, by hand.
-        let (enc, dec) = conv_gflop(&[4, 8, 8, 16, 16, 16], &[1; 6], 64, 96).unwrap();
+        let (enc, _) = conv_gflop(&[4, 8, 8, 16, 16, 16], &[1; 6], 64, 96).unwrap();
         let px = |l: u32| (64 >> l) as f64 * (96 >> l) as f64;
         let e = 2.0
             * 9.0

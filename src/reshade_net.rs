@@ -87,10 +87,10 @@ impl NetOptions {
 }
 
 enum Form {
-    Single(VerifiedModel),
+    Single(Box<VerifiedModel>),
     Split {
-        encoder: VerifiedModel,
-        decoder: VerifiedModel,
+        encoder: Box<VerifiedModel>,
+        decoder: Box<VerifiedModel>,
     },
 }
 
@@ -320,6 +320,9 @@ impl Reshader for NetReshader {
     }
 }
 
+/// Working-resolution residuals of one network call, one per view.
+type BatchResult = Result<Vec<Vec<f32>>, NetError>;
+
 /// A photo after the encoder: ready to be reshaded for any number of views.
 pub struct NetPhoto<'a> {
     net: &'a NetReshader,
@@ -380,7 +383,7 @@ impl NetPhoto<'_> {
             return Ok(out);
         }
         let next = AtomicUsize::new(0);
-        let results: Vec<Mutex<Option<Result<Vec<Vec<f32>>, NetError>>>> =
+        let results: Vec<Mutex<Option<BatchResult>>> =
             chunks.iter().map(|_| Mutex::new(None)).collect();
         std::thread::scope(|s| {
             for _ in 0..workers {
@@ -583,7 +586,13 @@ fn find_models(path: &Path, precision: Precision) -> Result<Form, NetError> {
     }
     let m = manifest::Manifest::load(path)?;
     let partner = match m.task {
-        Task::Reshade => return Ok(Form::Single(verified(path, Task::Reshade, precision)?)),
+        Task::Reshade => {
+            return Ok(Form::Single(Box::new(verified(
+                path,
+                Task::Reshade,
+                precision,
+            )?)))
+        }
         Task::ReshadeEncoder => Task::ReshadeDecoder,
         Task::ReshadeDecoder => Task::ReshadeEncoder,
         other => {
@@ -634,7 +643,10 @@ fn pair(a: &Path, b: &Path, a_task: Task, precision: Precision) -> Result<Form, 
         )
         .into());
     }
-    Ok(Form::Split { encoder, decoder })
+    Ok(Form::Split {
+        encoder: Box::new(encoder),
+        decoder: Box::new(decoder),
+    })
 }
 
 fn verified(path: &Path, task: Task, precision: Precision) -> Result<VerifiedModel, NetError> {
@@ -706,7 +718,11 @@ fn find_in_dir(dir: &Path, precision: Precision) -> Result<Form, NetError> {
         return pair(encoders[0], decoders[0], Task::ReshadeEncoder, precision);
     }
     match singles.as_slice() {
-        [one] => Ok(Form::Single(verified(one, Task::Reshade, precision)?)),
+        [one] => Ok(Form::Single(Box::new(verified(
+            one,
+            Task::Reshade,
+            precision,
+        )?))),
         [] => Err(none()),
         many => Err(ambiguous("single-graph manifests", many)),
     }

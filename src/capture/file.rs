@@ -217,6 +217,10 @@ impl FrameSource for FileSource {
     fn dropped(&self) -> u64 {
         self.dropped
     }
+
+    fn realtime(&self) -> bool {
+        self.paced
+    }
 }
 
 fn bad(path: &Path, reason: &str) -> CaptureError {

@@ -380,9 +380,11 @@ fn spawn_capture(
 ) -> std::thread::JoinHandle<CaptureStats> {
     std::thread::spawn(move || {
         let mut stats = CaptureStats::default();
+        let realtime = source.realtime();
         while !stop.load(Ordering::SeqCst) {
             match source.next_frame() {
-                Ok(Some(frame)) => mailbox.put(frame),
+                Ok(Some(frame)) if realtime => mailbox.put(frame),
+                Ok(Some(frame)) => mailbox.put_when_empty(frame, &stop),
                 Ok(None) => break,
                 Err(e) if !e.is_fatal() => {
                     stats.bad_frames += 1;
@@ -421,17 +423,31 @@ impl Mailbox {
         if slot.frame.replace(frame).is_some() {
             slot.overwritten += 1;
         }
-        self.ready.notify_one();
+        self.ready.notify_all();
+    }
+
+    /// For sources that are not real time: waits until the previous frame was taken.
+    fn put_when_empty(&self, frame: Frame, stop: &AtomicBool) {
+        let mut slot = self.slot.lock().expect("capture mailbox poisoned");
+        while slot.frame.is_some() && !stop.load(Ordering::SeqCst) {
+            slot = self
+                .ready
+                .wait_timeout(slot, Duration::from_millis(100))
+                .expect("capture mailbox poisoned")
+                .0;
+        }
+        slot.frame = Some(frame);
+        self.ready.notify_all();
     }
 
     fn fail(&self, error: CaptureError) {
         self.slot.lock().expect("capture mailbox poisoned").error = Some(error);
-        self.ready.notify_one();
+        self.ready.notify_all();
     }
 
     fn close(&self) {
         self.slot.lock().expect("capture mailbox poisoned").closed = true;
-        self.ready.notify_one();
+        self.ready.notify_all();
     }
 
     /// The newest frame, waiting for one; `None` once capture ended and the slot is
@@ -441,6 +457,7 @@ impl Mailbox {
         let mut slot = self.slot.lock().expect("capture mailbox poisoned");
         loop {
             if let Some(frame) = slot.frame.take() {
+                self.ready.notify_all();
                 return Some(Ok(frame));
             }
             if let Some(error) = slot.error.take() {

@@ -136,6 +136,11 @@ pub trait FrameSource: Send {
     fn dropped(&self) -> u64 {
         0
     }
+    /// Whether frames arrive in real time (a camera, a paced replay), so a slow consumer
+    /// must skip some; otherwise the consumer sets the pace and sees every frame.
+    fn realtime(&self) -> bool {
+        true
+    }
 }
 
 /// Checks a stream's declared size before buffers are sized from it.

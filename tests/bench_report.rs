@@ -3,7 +3,7 @@
 
 use std::path::PathBuf;
 
-use reshader::bench::report::{self, Case, NaiveRow, PeerRow, Report, Stat, StageRow};
+use reshader::bench::report::{self, Case, NaiveRow, PeerRow, Report, StageRow, Stat};
 use reshader::bench::{self as bench, BenchArgs};
 use reshader::manifest::Precision;
 
@@ -72,7 +72,10 @@ fn report(cases: Vec<Case>) -> Report {
 #[test]
 fn stats_take_the_median_min_and_max() {
     let s = Stat::of(&[5.0, 1.0, 3.0]).unwrap();
-    assert_eq!((s.median_ms, s.min_ms, s.max_ms, s.runs), (3.0, 1.0, 5.0, 3));
+    assert_eq!(
+        (s.median_ms, s.min_ms, s.max_ms, s.runs),
+        (3.0, 1.0, 5.0, 3)
+    );
     assert_eq!(Stat::of(&[4.0, 1.0, 2.0, 3.0]).unwrap().median_ms, 2.5);
     assert!(Stat::of(&[]).is_none());
 }
@@ -112,8 +115,13 @@ fn json_round_trips_and_rejects_other_formats() {
     let back = Report::from_json("x.json", &r.to_json()).unwrap();
     assert_eq!(back, r);
     let other = r.to_json().replace(report::FORMAT, "something-else/9");
-    let err = Report::from_json("old.json", &other).unwrap_err().to_string();
-    assert!(err.contains("old.json") && err.contains("something-else/9"), "{err}");
+    let err = Report::from_json("old.json", &other)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains("old.json") && err.contains("something-else/9"),
+        "{err}"
+    );
     let err = Report::from_json("bad.json", "{").unwrap_err().to_string();
     assert!(err.contains("bad.json"), "{err}");
 }
@@ -129,11 +137,25 @@ fn compare_reports_the_change_per_stage() {
         case("generic-8view", 1.0, true),
     ]);
     let text = now.compare(&before);
-    assert!(text.contains("| photo.jpg / looking-glass-portrait | decode | 10.0 | 20.0 | +100.0% (2.00×) |"), "{text}");
+    assert!(
+        text.contains(
+            "| photo.jpg / looking-glass-portrait | decode | 10.0 | 20.0 | +100.0% (2.00×) |"
+        ),
+        "{text}"
+    );
     assert!(text.contains("| photo.jpg / looking-glass-portrait | LDI build + inpainting | n/a | 20.0 | newly built |"), "{text}");
-    assert!(text.contains("| **total** | 100 | 200 | +100.0% (2.00×) |"), "{text}");
-    assert!(text.contains("photo.jpg / generic-8view | (all) | not in previous"), "{text}");
-    assert!(text.contains("photo.jpg / looking-glass-go | (all) | | not in this run"), "{text}");
+    assert!(
+        text.contains("| **total** | 100 | 200 | +100.0% (2.00×) |"),
+        "{text}"
+    );
+    assert!(
+        text.contains("photo.jpg / generic-8view | (all) | not in previous"),
+        "{text}"
+    );
+    assert!(
+        text.contains("photo.jpg / looking-glass-go | (all) | | not in this run"),
+        "{text}"
+    );
 }
 
 fn tiny_args() -> BenchArgs {
@@ -161,13 +183,21 @@ fn tiny_args() -> BenchArgs {
 fn a_tiny_run_reports_every_stage_for_both_photos() {
     let r = bench::run(&tiny_args(), "test").unwrap();
     assert_eq!(r.cases.len(), 2);
-    assert!(r.reshade_model.contains("FIXTURE STAND-IN"), "{}", r.reshade_model);
+    assert!(
+        r.reshade_model.contains("FIXTURE STAND-IN"),
+        "{}",
+        r.reshade_model
+    );
     for case in &r.cases {
         let names: Vec<&str> = case.stages.iter().map(|s| s.stage.as_str()).collect();
         assert_eq!(names, report::STAGES);
         for row in &case.stages {
             // Only the LDI builder is missing from this runtime; everything else ran.
-            assert_eq!(row.time.is_none(), row.stage == "LDI build + inpainting", "{row:?}");
+            assert_eq!(
+                row.time.is_none(),
+                row.stage == "LDI build + inpainting",
+                "{row:?}"
+            );
         }
         assert_eq!(case.views, 8);
         assert!(case.total.is_some());
@@ -182,7 +212,10 @@ fn bad_options_fail_before_measuring() {
     let mut args = tiny_args();
     args.out = vec![PathBuf::from("bench.txt")];
     let err = bench::run(&args, "test").err().unwrap().to_string();
-    assert!(err.contains("bench.txt") && err.contains(".md or .json"), "{err}");
+    assert!(
+        err.contains("bench.txt") && err.contains(".md or .json"),
+        "{err}"
+    );
     let mut args = tiny_args();
     args.boards = vec!["no-such-board".into()];
     assert!(bench::run(&args, "test").is_err());

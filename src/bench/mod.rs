@@ -27,6 +27,20 @@ use crate::views::ViewError;
 use peer::Job;
 use report::{Case, CompareError, NaiveRow, PeerRow, Report, Stat, FORMAT};
 
+pub const BENCH_ABOUT: &str = "\
+Time the conversion of a photo to a woven frame, stage by stage (median and min-max of
+--runs runs), for the shipped example photo and a synthetic 12 MP photo on each board,
+with peak memory, tract vs onnxruntime on the same ONNX files, and the paper-size network
+run per view (the naive configuration) for comparison. Build with --release: dev-profile
+times are not representative.
+
+Examples:
+  cargo run --release -- bench --out bench.md --out bench.json
+  cargo run --release -- bench --model models/reshade --compare bench.json
+
+The reshading model timed is --model (default: the tiny test fixture, labelled as a
+stand-in in every table). See bench/README.md.";
+
 pub const DEFAULT_BOARDS: &str = "looking-glass-portrait,looking-glass-go,generic-8view";
 
 #[derive(Debug, thiserror::Error)]
@@ -147,7 +161,10 @@ impl BenchArgs {
             ));
         }
         for out in &self.out {
-            if !matches!(out.extension().and_then(|e| e.to_str()), Some("md" | "json")) {
+            if !matches!(
+                out.extension().and_then(|e| e.to_str()),
+                Some("md" | "json")
+            ) {
                 return Err(BenchError::Usage(format!(
                     "--out {}: the name must end in .md or .json",
                     out.display()
@@ -249,7 +266,12 @@ pub fn run(args: &BenchArgs, command: &str) -> Result<Report, BenchError> {
     Ok(Report {
         format: FORMAT.into(),
         command: command.into(),
-        profile: if cfg!(debug_assertions) { "dev" } else { "release" }.into(),
+        profile: if cfg!(debug_assertions) {
+            "dev"
+        } else {
+            "release"
+        }
+        .into(),
         threads: args.threads,
         runs: args.runs,
         load_average,
@@ -275,7 +297,9 @@ fn max_opt(a: Option<f64>, b: Option<f64>) -> Option<f64> {
 fn reshade_label(net: &NetReshader) -> String {
     let description = net.description();
     if description.contains("fixture") {
-        format!("{description} — FIXTURE STAND-IN (tiny test network, not a trained reshading model)")
+        format!(
+            "{description} — FIXTURE STAND-IN (tiny test network, not a trained reshading model)"
+        )
     } else {
         description
     }
@@ -342,16 +366,24 @@ fn script(name: &str) -> PathBuf {
     if local.is_file() {
         local
     } else {
-        Path::new(env!("CARGO_MANIFEST_DIR")).join("bench").join(name)
+        Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("bench")
+            .join(name)
     }
 }
 
 fn cache_home() -> PathBuf {
-    std::env::var_os("HOME").map_or_else(std::env::temp_dir, PathBuf::from).join(".cache/reshader")
+    std::env::var_os("HOME")
+        .map_or_else(std::env::temp_dir, PathBuf::from)
+        .join(".cache/reshader")
 }
 
 fn python(args: &BenchArgs) -> Result<PathBuf, BenchError> {
-    if let Some(p) = args.python.clone().or_else(|| std::env::var_os("RESHADER_PYTHON").map(PathBuf::from)) {
+    if let Some(p) = args
+        .python
+        .clone()
+        .or_else(|| std::env::var_os("RESHADER_PYTHON").map(PathBuf::from))
+    {
         return Ok(p);
     }
     let venv = cache_home().join("venv/bin/python");
@@ -386,7 +418,10 @@ fn reshade_manifests(model: &Path, precision: Precision) -> Result<Vec<PathBuf>,
         .filter(|p| {
             manifest::Manifest::load(p).is_ok_and(|m| {
                 m.precision == precision
-                    && matches!(m.task, Task::Reshade | Task::ReshadeEncoder | Task::ReshadeDecoder)
+                    && matches!(
+                        m.task,
+                        Task::Reshade | Task::ReshadeEncoder | Task::ReshadeDecoder
+                    )
             })
         })
         .collect();
@@ -400,19 +435,30 @@ fn padded(v: u32, multiple: usize) -> usize {
 
 /// tract and onnxruntime on the depth models (at the network size the synthetic photo
 /// gets) and on the reshading files (at the first board's padded view size).
-fn peer_rows(args: &BenchArgs, ctx: &Context, boards: &[Board]) -> Result<Vec<PeerRow>, BenchError> {
+fn peer_rows(
+    args: &BenchArgs,
+    ctx: &Context,
+    boards: &[Board],
+) -> Result<Vec<PeerRow>, BenchError> {
     let mut jobs = Vec::new();
     let (dw, dh) = ctx.depth.network_size(args.synthetic.0, args.synthetic.1)?;
     for precision in [Precision::Int8, Precision::Fp32] {
-        let path = Path::new(crate::depth_net::DEFAULT_MODEL_DIR)
-            .join(format!("{}-{precision}.json", crate::depth_net::DEFAULT_MODEL));
+        let path = Path::new(crate::depth_net::DEFAULT_MODEL_DIR).join(format!(
+            "{}-{precision}.json",
+            crate::depth_net::DEFAULT_MODEL
+        ));
         let path = if path.is_file() {
             path
         } else {
             Path::new(env!("CARGO_MANIFEST_DIR")).join(path)
         };
         let model = manifest::load_verified(&path)?;
-        jobs.push(Job::for_manifest(&format!("depth {}", model.manifest.name), &model, dh, dw)?);
+        jobs.push(Job::for_manifest(
+            &format!("depth {}", model.manifest.name),
+            &model,
+            dh,
+            dw,
+        )?);
     }
     if let Some(board) = boards.first() {
         let (vw, vh) = board.view_size();
@@ -420,11 +466,22 @@ fn peer_rows(args: &BenchArgs, ctx: &Context, boards: &[Board]) -> Result<Vec<Pe
             let model = manifest::load_verified(&path)?;
             let m = model.manifest.size_multiple as usize;
             let label = format!("{} {}", model.manifest.task, model.manifest.name);
-            jobs.push(Job::for_manifest(&label, &model, padded(vh, m), padded(vw, m))?);
+            jobs.push(Job::for_manifest(
+                &label,
+                &model,
+                padded(vh, m),
+                padded(vw, m),
+            )?);
         }
     }
     let (version, ort) = match python(args).and_then(|py| {
-        peer::time_onnxruntime(&py, &script("peer_onnxruntime.py"), &jobs, args.threads, args.runs.max(3))
+        peer::time_onnxruntime(
+            &py,
+            &script("peer_onnxruntime.py"),
+            &jobs,
+            args.threads,
+            args.runs.max(3),
+        )
     }) {
         Ok((v, r)) => (Some(v), r),
         Err(e) => {
@@ -435,7 +492,10 @@ fn peer_rows(args: &BenchArgs, ctx: &Context, boards: &[Board]) -> Result<Vec<Pe
     let mut rows = Vec::new();
     for job in &jobs {
         let tract = peer::time_tract(job, args.threads, args.runs.max(3));
-        let ort_time = ort.iter().find(|(l, _)| *l == job.label).map(|(_, r)| r.clone());
+        let ort_time = ort
+            .iter()
+            .find(|(l, _)| *l == job.label)
+            .map(|(_, r)| r.clone());
         let mut notes = Vec::new();
         if let Err(e) = &tract {
             notes.push(format!("tract: {e}"));
@@ -461,14 +521,20 @@ const NAIVE_STEM: &str = "reshade-full-naive-fp32";
 
 /// The randomly initialised paper-size network, exported once into the cache.
 fn naive_model(args: &BenchArgs) -> Result<PathBuf, BenchError> {
-    let dir = args.cache.clone().unwrap_or_else(|| cache_home().join("bench"));
+    let dir = args
+        .cache
+        .clone()
+        .unwrap_or_else(|| cache_home().join("bench"));
     let manifest = dir.join(format!("{NAIVE_STEM}.json"));
     if manifest.is_file() {
         return Ok(manifest);
     }
     let py = python(args)?;
     let exporter = script("export_naive.py");
-    log::info!("exporting the paper-size network to {} (once)", dir.display());
+    log::info!(
+        "exporting the paper-size network to {} (once)",
+        dir.display()
+    );
     let status = std::process::Command::new(&py)
         .arg(&exporter)
         .arg("--out")
@@ -480,13 +546,20 @@ fn naive_model(args: &BenchArgs) -> Result<PathBuf, BenchError> {
     if !status.success() || !manifest.is_file() {
         return Err(BenchError::Peer {
             script: exporter,
-            problem: format!("exited with {status} without writing {}", manifest.display()),
+            problem: format!(
+                "exited with {status} without writing {}",
+                manifest.display()
+            ),
         });
     }
     Ok(manifest)
 }
 
-fn naive_rows(args: &BenchArgs, boards: &[Board], cases: &[Case]) -> Result<Vec<NaiveRow>, BenchError> {
+fn naive_rows(
+    args: &BenchArgs,
+    boards: &[Board],
+    cases: &[Case],
+) -> Result<Vec<NaiveRow>, BenchError> {
     let model = match naive_model(args) {
         Ok(path) => manifest::load_verified(&path)?,
         Err(e) => {
@@ -546,21 +619,30 @@ fn runtime_reshading(cases: &[Case], board: &str) -> Option<(f64, String)> {
 
 /// Median/min/max per stage over runs, in [`report::STAGES`] order; `None` rows are
 /// stages the runtime has not built.
-pub fn stage_stats(runs: &[Vec<(&'static str, f64)>]) -> (Vec<(&'static str, Option<Stat>)>, Option<Stat>) {
+pub fn stage_stats(
+    runs: &[Vec<(&'static str, f64)>],
+) -> (Vec<(&'static str, Option<Stat>)>, Option<Stat>) {
     let rows = report::STAGES
         .iter()
         .map(|&stage| {
             let samples: Vec<f64> = runs
                 .iter()
                 .filter_map(|run| {
-                    let times: Vec<f64> = run.iter().filter(|(s, _)| *s == stage).map(|(_, t)| *t).collect();
+                    let times: Vec<f64> = run
+                        .iter()
+                        .filter(|(s, _)| *s == stage)
+                        .map(|(_, t)| *t)
+                        .collect();
                     (!times.is_empty()).then(|| times.iter().sum())
                 })
                 .collect();
             (stage, Stat::of(&samples))
         })
         .collect();
-    let totals: Vec<f64> = runs.iter().map(|run| run.iter().map(|(_, t)| t).sum()).collect();
+    let totals: Vec<f64> = runs
+        .iter()
+        .map(|run| run.iter().map(|(_, t)| t).sum())
+        .collect();
     (rows, Stat::of(&totals))
 }
 

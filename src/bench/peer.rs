@@ -29,7 +29,12 @@ pub struct Job {
 
 impl Job {
     /// The job for a manifest's model with its symbolic H and W set to `height`×`width`.
-    pub fn for_manifest(label: &str, model: &VerifiedModel, height: usize, width: usize) -> Result<Job, BenchError> {
+    pub fn for_manifest(
+        label: &str,
+        model: &VerifiedModel,
+        height: usize,
+        width: usize,
+    ) -> Result<Job, BenchError> {
         let mut inputs = Vec::new();
         for spec in &model.manifest.inputs {
             let shape = spec
@@ -39,7 +44,10 @@ impl Job {
                 .collect::<Option<Vec<_>>>()
                 .ok_or_else(|| BenchError::Model {
                     path: model.manifest_path.clone(),
-                    problem: format!("input {} has a shape {:?} the benchmark cannot resolve", spec.name, spec.shape),
+                    problem: format!(
+                        "input {} has a shape {:?} the benchmark cannot resolve",
+                        spec.name, spec.shape
+                    ),
                 })?;
             inputs.push((spec.name.clone(), shape));
         }
@@ -47,7 +55,12 @@ impl Job {
             label: label.into(),
             path: model.model_path.clone(),
             inputs,
-            outputs: model.manifest.outputs.iter().map(|o| o.name.clone()).collect(),
+            outputs: model
+                .manifest
+                .outputs
+                .iter()
+                .map(|o| o.name.clone())
+                .collect(),
             manifest: model.manifest_path.clone(),
         })
     }
@@ -55,7 +68,12 @@ impl Job {
     pub fn shapes_text(&self) -> String {
         self.inputs
             .iter()
-            .map(|(n, s)| format!("{n} {}", s.iter().map(usize::to_string).collect::<Vec<_>>().join("×")))
+            .map(|(n, s)| {
+                format!(
+                    "{n} {}",
+                    s.iter().map(usize::to_string).collect::<Vec<_>>().join("×")
+                )
+            })
             .collect::<Vec<_>>()
             .join(", ")
     }
@@ -87,7 +105,9 @@ fn inputs_for(job: &Job) -> Vec<(String, Tensor)> {
         .iter()
         .map(|(name, shape)| {
             let n: usize = shape.iter().product();
-            let data = (0..n).map(|i| ((i * 7919) % 1000) as f32 / 1000.0).collect();
+            let data = (0..n)
+                .map(|i| ((i * 7919) % 1000) as f32 / 1000.0)
+                .collect();
             (name.clone(), Tensor::new(shape.clone(), data))
         })
         .collect()
@@ -97,7 +117,11 @@ fn inputs_for(job: &Job) -> Vec<(String, Tensor)> {
 pub fn time_tract(job: &Job, threads: usize, runs: usize) -> Result<Stat, BenchError> {
     let model = manifest::load_verified(&job.manifest)?;
     let engine = engine::by_name("tract", threads)?;
-    let shapes: Vec<(&str, Vec<usize>)> = job.inputs.iter().map(|(n, s)| (n.as_str(), s.clone())).collect();
+    let shapes: Vec<(&str, Vec<usize>)> = job
+        .inputs
+        .iter()
+        .map(|(n, s)| (n.as_str(), s.clone()))
+        .collect();
     let outputs: Vec<&str> = job.outputs.iter().map(String::as_str).collect();
     let plan = engine.plan(
         ModelSource {
@@ -147,12 +171,23 @@ struct PeerResult {
 pub type PeerTimes = (String, Vec<(String, Result<Stat, String>)>);
 
 /// Runs `script` with `python`, handing it the jobs as JSON on stdin.
-pub fn time_onnxruntime(python: &Path, script: &Path, jobs: &[Job], threads: usize, runs: usize) -> Result<PeerTimes, BenchError> {
+pub fn time_onnxruntime(
+    python: &Path,
+    script: &Path,
+    jobs: &[Job],
+    threads: usize,
+    runs: usize,
+) -> Result<PeerTimes, BenchError> {
     let peer_err = |problem: String| BenchError::Peer {
         script: script.to_owned(),
         problem,
     };
-    let request = serde_json::to_vec(&PeerRequest { threads, runs, models: jobs }).expect("request serialises");
+    let request = serde_json::to_vec(&PeerRequest {
+        threads,
+        runs,
+        models: jobs,
+    })
+    .expect("request serialises");
     let mut child = Command::new(python)
         .arg(script)
         .stdin(Stdio::piped())
@@ -166,7 +201,9 @@ pub fn time_onnxruntime(python: &Path, script: &Path, jobs: &[Job], threads: usi
         .expect("stdin is piped")
         .write_all(&request)
         .map_err(|e| peer_err(format!("cannot send the jobs: {e}")))?;
-    let output = child.wait_with_output().map_err(|e| peer_err(e.to_string()))?;
+    let output = child
+        .wait_with_output()
+        .map_err(|e| peer_err(e.to_string()))?;
     if !output.status.success() {
         return Err(peer_err(format!(
             "exited with {}: {}",
@@ -178,7 +215,8 @@ pub fn time_onnxruntime(python: &Path, script: &Path, jobs: &[Job], threads: usi
 }
 
 fn parse_answer(stdout: &[u8]) -> Result<PeerTimes, String> {
-    let answer: PeerAnswer = serde_json::from_slice(stdout).map_err(|e| format!("printed no valid JSON: {e}"))?;
+    let answer: PeerAnswer =
+        serde_json::from_slice(stdout).map_err(|e| format!("printed no valid JSON: {e}"))?;
     let results = answer
         .results
         .into_iter()

@@ -26,7 +26,8 @@ pub fn write_synthetic_photo(dir: &Path, (w, h): (u32, u32)) -> Result<PathBuf, 
     let (image, _) = crate::bench_reshade::test_scene(w, h);
     let path = dir.join(format!("synthetic-{w}x{h}.jpg"));
     let file = std::fs::File::create(&path).map_err(io_err(&path))?;
-    let encoder = image::codecs::jpeg::JpegEncoder::new_with_quality(std::io::BufWriter::new(file), 90);
+    let encoder =
+        image::codecs::jpeg::JpegEncoder::new_with_quality(std::io::BufWriter::new(file), 90);
     image
         .to_rgb8()
         .write_with_encoder(encoder)
@@ -47,7 +48,13 @@ fn timed<T>(times: &mut RunTimes, stage: &'static str, f: impl FnOnce() -> T) ->
 }
 
 /// One warm-up run (plans are built there), then `runs` timed runs.
-pub fn run_case(ctx: &Context, label: &str, photo: &Path, board: &Board, runs: usize) -> Result<Case, BenchError> {
+pub fn run_case(
+    ctx: &Context,
+    label: &str,
+    photo: &Path,
+    board: &Board,
+    runs: usize,
+) -> Result<Case, BenchError> {
     let first = run_once(ctx, photo, board)?;
     let mut all = Vec::with_capacity(runs);
     for _ in 0..runs {
@@ -110,7 +117,9 @@ fn run_once(ctx: &Context, photo: &Path, board: &Board) -> Result<Run, BenchErro
         ctx.reshader.prepare_photo(&fitted.image, &training_depth)
     })?;
     let centres: Vec<[f64; 3]> = cameras.iter().map(|c| frame.camera(c.centre)).collect();
-    let colours = timed(&mut t, "reshade decoder × views", || prepared.reshade_views(&centres))?;
+    let colours = timed(&mut t, "reshade decoder × views", || {
+        prepared.reshade_views(&centres)
+    })?;
     let warp = MeshWarp::default();
     let views = timed(&mut t, "relocate (LDI render) × views", || {
         cameras
@@ -181,16 +190,24 @@ fn detail(ctx: &Context, stage: &str, board: &Board, run: &Run) -> String {
             run.depth_input.0,
             run.depth_input.1
         ),
-        "depth refinement" => "upsample to the photo, edge-aware refinement, scene scaling (network_depth − depth)".into(),
+        "depth refinement" => {
+            "upsample to the photo, edge-aware refinement, scene scaling (network_depth − depth)"
+                .into()
+        }
         "fit to view size" => format!("photo and depth resized to {ww}x{wh}"),
         "LDI build + inpainting" => "src/ldi has no LDI builder in this build".into(),
         "reshade encoder" if ctx.reshader.is_split() => format!("once per photo at {ww}x{wh}"),
-        "reshade encoder" => "single-graph model: only input preparation here, the whole network runs per view".into(),
+        "reshade encoder" => {
+            "single-graph model: only input preparation here, the whole network runs per view"
+                .into()
+        }
         "reshade decoder × views" => format!("{views} views at {ww}x{wh}"),
         "relocate (LDI render) × views" => {
             format!("{views} views by MeshWarp (depth-mesh rasterisation), the stand-in until the LDI renderer is built")
         }
-        "weave table" => "Weaver::new: subpixel→view table for the board (once per board and view size)".into(),
+        "weave table" => {
+            "Weaver::new: subpixel→view table for the board (once per board and view size)".into()
+        }
         "weave" => format!("views to 8-bit + subpixel weave, {} threads", ctx.threads),
         "encode/write" => "panel PNG encode + atomic write".into(),
         _ => String::new(),

@@ -15,7 +15,7 @@ const NAME: &str = "ort";
 
 static ENVIRONMENT: OnceLock<Result<ort::environment::Environment, String>> = OnceLock::new();
 
-fn environment() -> Result<(), EngineError> {
+fn environment() -> Result<&'static ort::environment::Environment, EngineError> {
     let env = ENVIRONMENT.get_or_init(|| {
         let path = std::env::var_os("ORT_DYLIB_PATH").filter(|p| !p.is_empty()).ok_or_else(|| {
             "set ORT_DYLIB_PATH to a libonnxruntime.so (the onnxruntime wheel has one in onnxruntime/capi/)"
@@ -31,13 +31,11 @@ fn environment() -> Result<(), EngineError> {
             .build()
             .map_err(|e| e.to_string())
     });
-    env.as_ref()
-        .map(|_| ())
-        .map_err(|message| EngineError::Load {
-            engine: NAME,
-            path: PathBuf::from("libonnxruntime"),
-            message: message.clone(),
-        })
+    env.as_ref().map_err(|message| EngineError::Load {
+        engine: NAME,
+        path: PathBuf::from("libonnxruntime"),
+        message: message.clone(),
+    })
 }
 
 pub struct OrtEngine {
@@ -73,7 +71,7 @@ impl Engine for OrtEngine {
             path: model.path.to_owned(),
             message: e.to_string(),
         };
-        let session = Session::builder()
+        let session = Session::builder(environment()?)
             .map_err(load)?
             .with_optimization_level(GraphOptimizationLevel::Level3)
             .map_err(|e| load(e.into()))?

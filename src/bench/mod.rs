@@ -322,7 +322,10 @@ pub(crate) struct TempDir(pub PathBuf);
 
 impl TempDir {
     fn new() -> Result<TempDir, BenchError> {
-        let path = std::env::temp_dir().join(format!("reshader-bench-{}", std::process::id()));
+        // Benchmarks may run side by side in one process (tests), each with its own directory.
+        static NEXT: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
+        let n = NEXT.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        let path = std::env::temp_dir().join(format!("reshader-bench-{}-{n}", std::process::id()));
         std::fs::create_dir_all(&path).map_err(io_err(&path))?;
         Ok(TempDir(path))
     }

@@ -1,0 +1,274 @@
+//! The background layer behind occluding edges, and its inpainting.
+//!
+//! From the far side of every cut the background grows under the occluder, breadth
+//! first (so each hidden pixel belongs to the nearest background), as far as the widest
+//! view can see behind that edge. Depth is continued by linear extrapolation of the
+//! background's disparity (planes stay planes), colour by patch-based synthesis: each
+//! hidden pixel copies the background pixel whose neighbourhood best matches what is
+//! already known around it, trying first the continuation of its neighbours' copies
+//! (which extends stripes and edges into the hole rather than smearing them), then a
+//! mirror of the background next to it, then random background pixels nearby.
+//! Candidates and known pixels are restricted to the background: foreground colours
+//! can never be copied into the band.
+//!
+//! A hidden pixel records the *index* of the pixel it copies, not a colour, so that
+//! each view can take the colour from its own reshaded image.
+
+use std::collections::VecDeque;
+
+use super::edges::Cuts;
+
+/// No background sample at this pixel.
+pub(super) const NONE: u32 = u32::MAX;
+
+pub(super) struct Band {
+    /// Per pixel: index into `disparity` and `source`, or [`NONE`].
+    pub at: Vec<u32>,
+    pub disparity: Vec<f32>,
+    pub source: Vec<u32>,
+}
+
+pub(super) struct BandInput<'a> {
+    pub width: usize,
+    pub height: usize,
+    pub disparity: &'a [f32],
+    /// Interleaved RGB of the build image.
+    pub colours: &'a [f32],
+    pub cuts: &'a Cuts,
+    /// Band width in pixels per unit disparity step (focal length × widest offset).
+    pub px_per_disparity: f64,
+    pub max_band_px: usize,
+    pub threshold: f32,
+    pub patch_radius: usize,
+    pub random_candidates: usize,
+}
+
+impl BandInput<'_> {
+    fn colour(&self, i: usize) -> [f32; 3] {
+        [
+            self.colours[3 * i],
+            self.colours[3 * i + 1],
+            self.colours[3 * i + 2],
+        ]
+    }
+
+    /// Whether the original pixel `i` lies on or behind a surface of disparity `d`.
+    fn behind_or_on(&self, i: usize, d: f32) -> bool {
+        self.disparity[i] <= d * (1.0 + self.threshold)
+    }
+
+    fn neighbours4(&self, i: usize) -> impl Iterator<Item = usize> {
+        let (w, h) = (self.width, self.height);
+        let (x, y) = (i % w, i / w);
+        [
+            (x > 0).then(|| i - 1),
+            (x + 1 < w).then(|| i + 1),
+            (y > 0).then(|| i - w),
+            (y + 1 < h).then(|| i + w),
+        ]
+        .into_iter()
+        .flatten()
+    }
+}
+
+/// Grows and inpaints the band behind every cut.
+pub(super) fn grow(input: &BandInput) -> Band {
+    let mut band = Band {
+        at: vec![NONE; input.width * input.height],
+        disparity: Vec::new(),
+        source: Vec::new(),
+    };
+    let mut queue = seeds(input);
+    while let Some((p, budget, surface, copied)) = queue.pop_front() {
+        if budget == 0 {
+            continue;
+        }
+        for r in input.neighbours4(p) {
+            if band.at[r] != NONE || input.behind_or_on(r, surface) {
+                continue;
+            }
+            let d = extrapolate_disparity(&band, input, r, surface);
+            if input.behind_or_on(r, d) {
+                continue;
+            }
+            let source = best_source(&band, input, r, d, budget).unwrap_or(copied);
+            band.at[r] = band.disparity.len() as u32;
+            band.disparity.push(d);
+            band.source.push(source);
+            queue.push_back((r, budget - 1, d, source));
+        }
+    }
+    band
+}
+
+/// The far pixel of every cut, with the band width its edge needs, the disparity of the
+/// surface to extend (the far pixel's own, even where it is an occluder itself) and the
+/// background pixel the band copies when nothing better is found (the far pixel).
+fn seeds(input: &BandInput) -> VecDeque<(usize, usize, f32, u32)> {
+    let mut budget = vec![0usize; input.width * input.height];
+    for (near, far) in input.cuts.pairs(input.disparity) {
+        let step = f64::from(input.disparity[near] - input.disparity[far]);
+        let px = ((step * input.px_per_disparity).ceil() as usize + 2).min(input.max_band_px);
+        budget[far] = budget[far].max(px);
+    }
+    budget
+        .iter()
+        .enumerate()
+        .filter(|(_, &b)| b > 0)
+        .map(|(i, &b)| (i, b, input.disparity[i], i as u32))
+        .collect()
+}
+
+/// The disparity of the sample at pixel `i` that lies on the surface of disparity
+/// about `d` (its band sample or its original pixel), if either does.
+fn settled(band: &Band, input: &BandInput, i: usize, d: f32) -> Option<f32> {
+    let on_surface = |b: f32| (b - d).abs() <= 2.0 * input.threshold * d.max(b);
+    let back = match band.at[i] {
+        NONE => None,
+        k => Some(band.disparity[k as usize]).filter(|&b| on_surface(b)),
+    };
+    back.or_else(|| Some(input.disparity[i]).filter(|&b| on_surface(b)))
+}
+
+/// Continues the background's disparity into pixel `r`: from each settled neighbour,
+/// linear extrapolation along the line through it when the pixel beyond is settled
+/// too, its own value otherwise; the predictions are averaged.
+fn extrapolate_disparity(band: &Band, input: &BandInput, r: usize, surface: f32) -> f32 {
+    let w = input.width as i64;
+    let (rx, ry) = ((r as i64) % w, (r as i64) / w);
+    let at = |x: i64, y: i64| {
+        (x >= 0 && y >= 0 && x < w && y < input.height as i64).then(|| (y * w + x) as usize)
+    };
+    let (mut sum, mut count) = (0.0f32, 0);
+    for (dx, dy) in [(1, 0), (-1, 0), (0, 1), (0, -1)] {
+        let Some(m) = at(rx + dx, ry + dy) else {
+            continue;
+        };
+        let Some(dm) = settled(band, input, m, surface) else {
+            continue;
+        };
+        let beyond = at(rx + 2 * dx, ry + 2 * dy).and_then(|b| settled(band, input, b, surface));
+        let predicted = beyond.map_or(dm, |db| (2.0 * dm - db).clamp(0.5 * dm, 1.5 * dm));
+        sum += predicted;
+        count += 1;
+    }
+    if count == 0 {
+        surface
+    } else {
+        sum / count as f32
+    }
+}
+
+/// The background pixel whose neighbourhood best matches the known neighbourhood of
+/// `r`, if any candidate is background.
+fn best_source(band: &Band, input: &BandInput, r: usize, d: f32, reach: usize) -> Option<u32> {
+    let (w, h) = (input.width as i64, input.height as i64);
+    let (rx, ry) = ((r as i64) % w, (r as i64) / w);
+    let target = known_patch(band, input, rx, ry, d);
+    let mut best = (f32::INFINITY, NONE);
+    let mut consider = |sx: i64, sy: i64| {
+        if sx < 0 || sy < 0 || sx >= w || sy >= h {
+            return;
+        }
+        let s = (sy * w + sx) as usize;
+        if !input.behind_or_on(s, d) || best.1 == s as u32 {
+            return;
+        }
+        let score = patch_distance(input, &target, sx, sy, d);
+        if score < best.0 {
+            best = (score, s as u32);
+        }
+    };
+    for m in input.neighbours4(r) {
+        let (mx, my) = ((m as i64) % w, (m as i64) / w);
+        let (ox, oy) = (rx - mx, ry - my);
+        match band.at[m] {
+            // Coherence: continue the neighbour's copy with the same offset.
+            k if k != NONE => {
+                let s = band.source[k as usize] as i64;
+                consider(s % w + ox, s / w + oy);
+            }
+            // Background next to the hole: itself and its mirror image across r's edge.
+            _ if input.behind_or_on(m, d) => {
+                consider(mx, my);
+                consider(mx - ox, my - oy);
+            }
+            _ => {}
+        }
+    }
+    let radius = (2 * reach + input.patch_radius + 1) as i64;
+    let mut rng = SplitMix(r as u64 ^ 0x9e37_79b9_7f4a_7c15);
+    for _ in 0..input.random_candidates {
+        let dx = (rng.next() % (2 * radius as u64 + 1)) as i64 - radius;
+        let dy = (rng.next() % (2 * radius as u64 + 1)) as i64 - radius;
+        consider(rx + dx, ry + dy);
+    }
+    (best.1 != NONE).then_some(best.1)
+}
+
+/// Known colours around (x, y) as (dx, dy, colour): background pixels and band pixels.
+fn known_patch(
+    band: &Band,
+    input: &BandInput,
+    x: i64,
+    y: i64,
+    d: f32,
+) -> Vec<(i64, i64, [f32; 3])> {
+    let (w, h) = (input.width as i64, input.height as i64);
+    let r = input.patch_radius as i64;
+    let mut known = Vec::with_capacity(((2 * r + 1) * (2 * r + 1)) as usize);
+    for dy in -r..=r {
+        for dx in -r..=r {
+            let (px, py) = (x + dx, y + dy);
+            if px < 0 || py < 0 || px >= w || py >= h {
+                continue;
+            }
+            let p = (py * w + px) as usize;
+            match band.at[p] {
+                NONE if input.behind_or_on(p, d) => known.push((dx, dy, input.colour(p))),
+                NONE => {}
+                k => known.push((dx, dy, input.colour(band.source[k as usize] as usize))),
+            }
+        }
+    }
+    known
+}
+
+/// Mean squared colour difference over the known offsets, foreground pixels around the
+/// source counting as a full mismatch, plus a penalty for a different depth.
+fn patch_distance(
+    input: &BandInput,
+    target: &[(i64, i64, [f32; 3])],
+    sx: i64,
+    sy: i64,
+    d: f32,
+) -> f32 {
+    let (w, h) = (input.width as i64, input.height as i64);
+    let mut sum = 0.0;
+    for &(dx, dy, c) in target {
+        let (px, py) = ((sx + dx).clamp(0, w - 1), (sy + dy).clamp(0, h - 1));
+        let p = (py * w + px) as usize;
+        sum += if input.behind_or_on(p, d) {
+            let s = input.colour(p);
+            (0..3).map(|k| (s[k] - c[k]).powi(2)).sum::<f32>()
+        } else {
+            3.0
+        };
+    }
+    let s = (sy * w + sx) as usize;
+    let depth_penalty = ((input.disparity[s] - d) / d.max(1e-6)).powi(2);
+    sum / target.len().max(1) as f32 + depth_penalty
+}
+
+/// A small deterministic generator: the band is the same on every run.
+struct SplitMix(u64);
+
+impl SplitMix {
+    fn next(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+        z ^ (z >> 31)
+    }
+}

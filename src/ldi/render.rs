@@ -1,0 +1,162 @@
+//! Rendering the layered mesh from one view: project the corners, rasterise every
+//! sample's quad into a supersampled id/depth buffer (nearest wins), fill what no quad
+//! covers from the farthest surface next to it, then resolve colours and average the
+//! subsamples, which anti-aliases the silhouettes.
+
+use super::mesh::Mesh;
+use crate::views::Intrinsics;
+
+/// Where a subsample's colour came from.
+#[derive(Clone, Copy, PartialEq, Eq)]
+pub(super) enum Origin {
+    Front,
+    Back,
+    Filled,
+}
+
+/// A rendered, not yet resolved view at `factor`× the output resolution.
+pub(super) struct Frame {
+    pub width: usize,
+    pub height: usize,
+    pub factor: usize,
+    pub sample: Vec<u32>,
+    pub origin: Vec<Origin>,
+}
+
+const EMPTY: u32 = u32::MAX;
+
+/// Projects and rasterises `mesh` for a camera at `centre` (in the build camera's frame)
+/// with intrinsics `k` (already supersampled). `front_samples` is how many samples are
+/// original pixels.
+pub(super) fn rasterise(
+    mesh: &Mesh,
+    front_samples: usize,
+    centre: [f64; 3],
+    k: &Intrinsics,
+    factor: usize,
+) -> Frame {
+    let (w, h) = (k.width as usize, k.height as usize);
+    let projected = project(mesh, centre, k);
+    let mut inv_z = vec![0.0f32; w * h];
+    let mut sample = vec![EMPTY; w * h];
+    for (s, quad) in mesh.samples.iter().enumerate() {
+        let [a, b, c, d] = quad.corners.map(|i| projected[i as usize]);
+        for tri in [[a, b, c], [b, d, c]] {
+            fill_triangle(tri, s as u32, w, h, &mut inv_z, &mut sample);
+        }
+    }
+    let origin = sample
+        .iter()
+        .map(|&s| match s {
+            EMPTY => Origin::Filled,
+            s if (s as usize) < front_samples => Origin::Front,
+            _ => Origin::Back,
+        })
+        .collect();
+    fill_holes(&mut sample, &inv_z, w, h);
+    Frame {
+        width: w,
+        height: h,
+        factor,
+        sample,
+        origin,
+    }
+}
+
+/// Screen position and 1/z of every vertex; 1/z = 0 marks a vertex behind the camera.
+fn project(mesh: &Mesh, centre: [f64; 3], k: &Intrinsics) -> Vec<[f32; 3]> {
+    let [tx, ty, tz] = centre.map(|c| c as f32);
+    let (fx, fy, cx, cy) = (k.fx as f32, k.fy as f32, k.cx as f32, k.cy as f32);
+    mesh.vertices
+        .iter()
+        .map(|v| {
+            let z = 1.0 / v.disparity;
+            let (qx, qy, qz) = (v.ray[0] * z - tx, v.ray[1] * z - ty, z - tz);
+            if qz <= 1e-6 {
+                return [0.0, 0.0, 0.0];
+            }
+            let inv = 1.0 / qz;
+            [fx * qx * inv + cx, fy * qy * inv + cy, inv]
+        })
+        .collect()
+}
+
+/// Writes `id` into the pixel centres inside the triangle (edges inclusive, so shared
+/// edges leave no gaps) where it is nearer than what is there; 1/z is affine on screen.
+fn fill_triangle(
+    p: [[f32; 3]; 3],
+    id: u32,
+    w: usize,
+    h: usize,
+    inv_z: &mut [f32],
+    sample: &mut [u32],
+) {
+    if p.iter().any(|v| v[2] <= 0.0) {
+        return;
+    }
+    let area =
+        (p[1][0] - p[0][0]) * (p[2][1] - p[0][1]) - (p[2][0] - p[0][0]) * (p[1][1] - p[0][1]);
+    if area.abs() < 1e-9 {
+        return;
+    }
+    let min_u = p[0][0].min(p[1][0]).min(p[2][0]);
+    let max_u = p[0][0].max(p[1][0]).max(p[2][0]);
+    let min_v = p[0][1].min(p[1][1]).min(p[2][1]);
+    let max_v = p[0][1].max(p[1][1]).max(p[2][1]);
+    let x0 = (min_u - 0.5).ceil().max(0.0) as usize;
+    let y0 = (min_v - 0.5).ceil().max(0.0) as usize;
+    let x1 = ((max_u - 0.5).floor() + 1.0).clamp(0.0, w as f32) as usize;
+    let y1 = ((max_v - 0.5).floor() + 1.0).clamp(0.0, h as f32) as usize;
+    let eps = 1e-5;
+    for y in y0..y1 {
+        let pv = y as f32 + 0.5;
+        for x in x0..x1 {
+            let pu = x as f32 + 0.5;
+            let w0 = ((p[1][0] - pu) * (p[2][1] - pv) - (p[2][0] - pu) * (p[1][1] - pv)) / area;
+            let w1 = ((p[2][0] - pu) * (p[0][1] - pv) - (p[0][0] - pu) * (p[2][1] - pv)) / area;
+            let w2 = 1.0 - w0 - w1;
+            if w0 < -eps || w1 < -eps || w2 < -eps {
+                continue;
+            }
+            let z = w0 * p[0][2] + w1 * p[1][2] + w2 * p[2][2];
+            let i = y * w + x;
+            if z > inv_z[i] {
+                inv_z[i] = z;
+                sample[i] = id;
+            }
+        }
+    }
+}
+
+/// Each uncovered subsample takes the sample of the farthest of the nearest covered
+/// subsamples to its left, right, top and bottom: what is left uncovered opens next to
+/// an occluder or the frame, and the background lies on the far side.
+fn fill_holes(sample: &mut [u32], inv_z: &[f32], w: usize, h: usize) {
+    if !sample.contains(&EMPTY) {
+        return;
+    }
+    let mut best: Vec<Option<usize>> = vec![None; w * h];
+    // (first index, stride, length) of every row and column.
+    let rows = (0..h).map(|y| (y * w, 1, w));
+    let columns = (0..w).map(|x| (x, w, h));
+    for (start, stride, len) in rows.chain(columns) {
+        for reversed in [false, true] {
+            let mut last: Option<usize> = None;
+            for k in 0..len {
+                let i = start + stride * if reversed { len - 1 - k } else { k };
+                if sample[i] != EMPTY {
+                    last = Some(i);
+                } else if let Some(from) = last {
+                    if best[i].is_none_or(|b| inv_z[from] < inv_z[b]) {
+                        best[i] = Some(from);
+                    }
+                }
+            }
+        }
+    }
+    for (i, b) in best.iter().enumerate() {
+        if let (EMPTY, Some(from)) = (sample[i], b) {
+            sample[i] = sample[*from];
+        }
+    }
+}

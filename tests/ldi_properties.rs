@@ -1,0 +1,217 @@
+//! Properties of the LDI renderer that hold for any scene.
+
+mod ldi_support;
+
+use ldi_support::*;
+use reshader::depth::DepthMap;
+use reshader::ldi::{Border, Ldi, LdiConfig, LdiRelocator};
+use reshader::photo::SrgbImage;
+use reshader::relocate::{RelocateError, Relocator};
+
+/// A small deterministic generator for random scenes.
+struct Lcg(u64);
+
+impl Lcg {
+    fn next(&mut self) -> f64 {
+        self.0 = self
+            .0
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        (self.0 >> 11) as f64 / (1u64 << 53) as f64
+    }
+
+    fn range(&mut self, lo: usize, hi: usize) -> usize {
+        lo + (self.next() * (hi - lo) as f64) as usize
+    }
+}
+
+/// Red boxes at random depths, apart from each other, in front of a tilted wall.
+fn random_scene(seed: u64) -> Scene {
+    let mut rng = Lcg(seed);
+    let mut scene = Scene::wall(4.0);
+    let tilt = 1.0 + rng.next() as f32 * 2.0;
+    for y in 0..H {
+        for x in 0..W {
+            scene.depth[y * W + x] = 3.0 + tilt * x as f32 / W as f32;
+        }
+    }
+    let mut taken = vec![false; W * H];
+    for _ in 0..rng.range(1, 6) {
+        let (x0, y0) = (rng.range(0, W - 4), rng.range(0, H - 4));
+        let (x1, y1) = (
+            rng.range(x0 + 1, W.min(x0 + 20)),
+            rng.range(y0 + 1, H.min(y0 + 20)),
+        );
+        // Boxes keep a pixel of wall between them: each box's band extends the wall.
+        let grown = |x: usize, y: usize| taken[y * W + x];
+        let clash = (y0.saturating_sub(1)..(y1 + 1).min(H))
+            .any(|y| (x0.saturating_sub(1)..(x1 + 1).min(W)).any(|x| grown(x, y)));
+        if clash {
+            continue;
+        }
+        for y in y0..y1 {
+            for x in x0..x1 {
+                taken[y * W + x] = true;
+            }
+        }
+        let depth = 0.8 + 1.5 * rng.next() as f32;
+        scene = scene.rect(x0..x1, y0..y1, RED, depth);
+    }
+    scene
+}
+
+#[test]
+fn a_plane_at_the_focus_depth_is_unchanged_in_every_view() {
+    let mut colours = SrgbImage::new(W as u32, H as u32);
+    for y in 0..H {
+        for x in 0..W {
+            let v = ((x * 7 + y * 13) % 11) as f32 / 10.0;
+            colours.put(
+                x as u32,
+                y as u32,
+                [v, x as f32 / W as f32, y as f32 / H as f32],
+            );
+        }
+    }
+    let focus = 2.5;
+    let depth = DepthMap::new(W, H, vec![focus as f32; W * H]);
+    let ldi = Ldi::build(&colours, &depth, &camera(), &LdiConfig::default(), 0.3).unwrap();
+    for tx in [-0.3, -0.11, 0.0, 0.07, 0.3] {
+        let out = ldi.render(&colours, &view(tx, focus)).unwrap();
+        for (a, b) in out.data().iter().zip(colours.data()) {
+            assert!((a - b).abs() < 1e-5, "tx={tx}: {a} vs {b}");
+        }
+    }
+}
+
+#[test]
+fn no_pixel_of_any_view_is_a_hole() {
+    for seed in 0..12 {
+        let scene = random_scene(seed);
+        for border in [Border::Extend, Border::Crop] {
+            let config = LdiConfig {
+                border,
+                ..LdiConfig::default()
+            };
+            let ldi = scene.build(&config, 0.25);
+            for tx in [-0.25, -0.1, 0.1, 0.25] {
+                let view = render(&ldi, &scene, tx, 3.5);
+                let holes = view.hole_fraction.iter().filter(|&&h| h > 0.0).count();
+                assert_eq!(
+                    holes, 0,
+                    "seed {seed} {border:?} tx={tx}: {holes} pixels not covered"
+                );
+            }
+        }
+    }
+}
+
+#[test]
+fn foreground_colours_never_appear_in_a_disoccluded_band() {
+    let mut checked = 0;
+    for seed in 100..116 {
+        let scene = random_scene(seed);
+        let ldi = scene.build(&LdiConfig::default(), 0.25);
+        for tx in [-0.25, 0.25] {
+            let view = render(&ldi, &scene, tx, 3.5);
+            for (i, &front) in view.front_fraction.iter().enumerate() {
+                if front == 0.0 {
+                    checked += 1;
+                    let red = view.image.data()[3 * i];
+                    assert_eq!(
+                        red,
+                        0.0,
+                        "seed {seed} tx={tx}: red at ({}, {})",
+                        i % W,
+                        i / W
+                    );
+                }
+            }
+        }
+    }
+    assert!(
+        checked > 500,
+        "the scenes must uncover something: {checked} pixels"
+    );
+}
+
+#[test]
+fn the_band_is_inpainted_from_the_wall_texture() {
+    let scene = Scene::wall(4.0).rect(20..40, 10..38, RED, 1.0);
+    let ldi = scene.build(&LdiConfig::default(), 0.2);
+    let view = render(&ldi, &scene, 0.2, 4.0);
+    // Wall pixels are [0, 0.1 or 0.4, 0.8]; subsample averages stay between the two.
+    let mut band_pixels = 0;
+    for (i, &front) in view.front_fraction.iter().enumerate() {
+        if front == 0.0 {
+            band_pixels += 1;
+            let [r, g, b] = view.image.get((i % W) as u32, (i / W) as u32);
+            let is_wall =
+                r == 0.0 && (b - 0.8).abs() < 1e-6 && (0.1 - 1e-6..=0.4 + 1e-6).contains(&g);
+            assert!(
+                is_wall,
+                "({}, {}): {:?} is not wall",
+                i % W,
+                i / W,
+                [r, g, b]
+            );
+        }
+    }
+    assert!(band_pixels > 100, "{band_pixels}");
+}
+
+#[test]
+fn each_view_takes_the_front_colours_from_its_own_image() {
+    let scene = Scene::wall(4.0).rect(20..40, 10..38, RED, 1.0);
+    let ldi = scene.build(&LdiConfig::default(), 0.2);
+    // A "reshaded" image: everything darker.
+    let mut dim = scene.colours.clone();
+    for y in 0..H as u32 {
+        for x in 0..W as u32 {
+            dim.put(x, y, scene.colours.get(x, y).map(|c| c * 0.5));
+        }
+    }
+    let bright = ldi.render(&scene.colours, &view(0.1, 4.0)).unwrap();
+    let dark = ldi.render(&dim, &view(0.1, 4.0)).unwrap();
+    for (b, d) in bright.data().iter().zip(dark.data()) {
+        assert!((d - 0.5 * b).abs() < 1e-6);
+    }
+}
+
+#[test]
+fn the_relocator_builds_once_and_rebuilds_for_a_wider_reach() {
+    let scene = random_scene(7);
+    let depth = scene.depth_map();
+    let relocator = LdiRelocator::default();
+    let near = view(0.1, 3.5);
+    let far = view(-0.3, 3.5);
+    let first = relocator
+        .ldi(&scene.colours, &depth, &camera(), &near)
+        .unwrap();
+    let again = relocator
+        .ldi(&scene.colours, &depth, &camera(), &near)
+        .unwrap();
+    assert!(std::sync::Arc::ptr_eq(&first, &again));
+    let wider = relocator
+        .ldi(&scene.colours, &depth, &camera(), &far)
+        .unwrap();
+    assert!(!std::sync::Arc::ptr_eq(&first, &wider));
+    assert!(wider.stats().reach > first.stats().reach);
+    let through_trait = relocator
+        .render(&scene.colours, &depth, &camera(), &far)
+        .unwrap();
+    assert_eq!(through_trait, wider.render(&scene.colours, &far).unwrap());
+    assert!(relocator.description().contains("layered depth image"));
+}
+
+#[test]
+fn mismatched_sizes_are_an_error() {
+    let scene = random_scene(1);
+    let small = SrgbImage::new(W as u32 - 1, H as u32);
+    let err = LdiRelocator::default()
+        .render(&small, &scene.depth_map(), &camera(), &view(0.1, 3.5))
+        .unwrap_err();
+    assert!(matches!(err, RelocateError::SizeMismatch { .. }));
+    let ldi = scene.build(&LdiConfig::default(), 0.1);
+    assert!(ldi.render(&small, &view(0.1, 3.5)).is_err());
+}

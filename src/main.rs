@@ -75,6 +75,9 @@ enum Command {
     /// Show a live camera on the panel: capture, views, weave, framebuffer or PNGs.
     #[command(long_about = reshader::capture::live::LIVE_ABOUT)]
     Live(reshader::capture::live::LiveArgs),
+    /// Time photo-to-frame conversion stage by stage against onnxruntime and the naive network.
+    #[command(long_about = reshader::bench::BENCH_ABOUT)]
+    Bench(reshader::bench::BenchArgs),
 }
 
 const RENDER_ABOUT: &str = "\
@@ -277,6 +280,11 @@ fn run(command: Command) -> Result<()> {
         Command::Convert(args) => Ok(reshader::gallery::cli::run_convert(&args)?),
         Command::Watch(args) => Ok(reshader::gallery::cli::run_watch(&args)?),
         Command::Live(args) => Ok(reshader::capture::live::run_live(&args)?),
+        Command::Bench(args) => {
+            let command: Vec<String> = std::env::args().collect();
+            reshader::bench::main(&args, &command.join(" "))?;
+            Ok(())
+        }
         Command::Boards => {
             list_boards();
             Ok(())

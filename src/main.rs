@@ -361,7 +361,9 @@ fn view(args: ViewArgs) -> Result<()> {
     } else {
         Some(single.scene.reshade.build()?)
     };
-    let reshader = reshader.as_deref().map(|r| r as &dyn reshader::reshade::Reshader);
+    let reshader = reshader
+        .as_deref()
+        .map(|r| r as &dyn reshader::reshade::Reshader);
     let image = pipeline::render_view(&req, reshader, &MeshWarp::default())?;
     pipeline::write_image(&single.out, &image)?;
     Ok(())

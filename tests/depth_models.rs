@@ -142,11 +142,14 @@ fn edited(dir: &Path, name: &str, edit: impl Fn(&mut Value)) -> PathBuf {
     path
 }
 
+/// A change that breaks the manifest, and the field the refusal must name.
+type Violation = (Box<dyn Fn(&mut Value)>, &'static str);
+
 #[test]
 fn manifest_contract_violations_name_the_field() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
-    let cases: Vec<(Box<dyn Fn(&mut Value)>, &str)> = vec![
+    let cases: Vec<Violation> = vec![
         (
             Box::new(|m| m["depth"]["output_kind"] = "inverse-depth".into()),
             "depth.output_kind",

@@ -231,7 +231,7 @@ fn fingerprint(args: &GalleryArgs, board: &Board) -> String {
     let calibration = args
         .calibration
         .as_deref()
-        .map(|p| super::sha256_file(p).unwrap_or_else(|e| format!("unreadable: {e}")));
+        .map(|p| crate::record::sha256_file(p).unwrap_or_else(|e| format!("unreadable: {e}")));
     format!(
         "reshader {}; board {} from {}; calibration {:?}; only {:?}; depthiness {:?}; \
          reshade identity; relocate mesh-warp",

@@ -18,12 +18,11 @@ pub mod watch;
 
 use std::collections::BTreeMap;
 use std::fmt;
-use std::io::Read;
 use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use sha2::{Digest, Sha256};
+use crate::record::sha256_file;
 
 /// Name of the done-marker inside each output directory.
 pub const DONE_MARKER: &str = ".reshader-done.json";
@@ -370,24 +369,6 @@ fn remove_if_present(path: &Path) -> std::io::Result<()> {
 fn file_name(path: &Path) -> String {
     path.file_name()
         .map_or_else(String::new, |n| n.to_string_lossy().into_owned())
-}
-
-pub fn sha256_file(path: &Path) -> std::io::Result<String> {
-    let mut file = std::fs::File::open(path)?;
-    let mut hasher = Sha256::new();
-    let mut buf = vec![0u8; 1 << 16];
-    loop {
-        let n = file.read(&mut buf)?;
-        if n == 0 {
-            break;
-        }
-        hasher.update(&buf[..n]);
-    }
-    Ok(hasher
-        .finalize()
-        .iter()
-        .map(|b| format!("{b:02x}"))
-        .collect())
 }
 
 fn panic_message(panic: &(dyn std::any::Any + Send)) -> String {

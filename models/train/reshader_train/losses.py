@@ -20,6 +20,26 @@ class LossWeights:
     vgg: float = 0.01
     style: float = 1.0
 
+    @classmethod
+    def parse(cls, text: str) -> LossWeights:
+        """'L1,VGG,STYLE', e.g. '0.1,0.01,1' (the paper's) or '0.1,0,0' (pixels only)."""
+        try:
+            l1, vgg, style = (float(v) for v in text.split(","))
+        except ValueError:
+            raise ValueError(
+                f"--loss-weights {text!r}: expected three numbers L1,VGG,STYLE"
+            ) from None
+        if min(l1, vgg, style) < 0 or l1 + vgg + style == 0:
+            raise ValueError(f"--loss-weights {text!r}: weights must be >= 0, not all zero")
+        return cls(l1, vgg, style)
+
+    def __str__(self) -> str:
+        return f"{self.l1:g},{self.vgg:g},{self.style:g}"
+
+    @property
+    def needs_features(self) -> bool:
+        return self.vgg > 0 or self.style > 0
+
 
 def gram(features: torch.Tensor) -> torch.Tensor:
     """(N,C,H,W) -> (N,C,C), normalised by C*H*W so that it does not grow with crop size."""
@@ -37,22 +57,28 @@ def bf16_is_fast(device: torch.device) -> bool:
 
 class ReshadeLoss(nn.Module):
     """`feature_dtype` bfloat16 runs the frozen feature network under autocast (about 1.8x
-    faster on CPUs with AVX512-BF16); the loss terms themselves are computed in float32."""
+    faster on CPUs with AVX512-BF16); the loss terms themselves are computed in float32.
+    With both perceptual weights at zero no feature network is needed or run."""
 
     def __init__(
         self,
-        feature_net: FeatureNet,
+        feature_net: FeatureNet | None,
         weights: LossWeights | None = None,
         feature_dtype: torch.dtype = torch.float32,
     ) -> None:
         super().__init__()
-        if feature_net is None:
+        self.weights = weights or LossWeights()
+        if feature_net is None and self.weights.needs_features:
             raise ValueError(
-                "ReshadeLoss needs a feature network: the perceptual terms are required"
+                f"loss weights {self.weights} have perceptual terms: a feature network is needed"
             )
         self.feature_net = feature_net
-        self.weights = weights or LossWeights()
         self.feature_dtype = feature_dtype
+
+    @property
+    def ident(self) -> str:
+        """What the perceptual terms were computed with, for configs and checkpoints."""
+        return self.feature_net.ident if self.feature_net is not None else "none"
 
     def features(self, x: torch.Tensor) -> torch.Tensor:
         if self.feature_dtype == torch.float32:
@@ -66,12 +92,15 @@ class ReshadeLoss(nn.Module):
         pred = pred * mask
         target = target * mask
         l1 = F.l1_loss(pred, target)
-        fp = self.features(pred)
-        with torch.no_grad():
-            ft = self.features(target)
-        vgg = F.mse_loss(fp, ft)
-        style = F.mse_loss(gram(fp), gram(ft))
         w = self.weights
+        if self.feature_net is None:
+            vgg = style = torch.zeros((), device=pred.device)
+        else:
+            fp = self.features(pred)
+            with torch.no_grad():
+                ft = self.features(target)
+            vgg = F.mse_loss(fp, ft)
+            style = F.mse_loss(gram(fp), gram(ft))
         total = w.l1 * l1 + w.vgg * vgg + w.style * style
         parts = {
             "loss": float(total.detach()),
@@ -80,3 +109,20 @@ class ReshadeLoss(nn.Module):
             "style": float(style.detach()),
         }
         return total, parts
+
+
+def make_loss(
+    weights: LossWeights,
+    feature_net: str,
+    vgg_weights: str | None,
+    precision: str,
+    device: torch.device,
+) -> ReshadeLoss:
+    """The training criterion as the command line asks for it (train and quantize share it)."""
+    if not weights.needs_features:
+        return ReshadeLoss(None, weights)
+    from .features import load_feature_net
+
+    net = load_feature_net(feature_net, vgg_weights).to(device)
+    bf16 = precision == "bfloat16" or (precision == "auto" and bf16_is_fast(device))
+    return ReshadeLoss(net, weights, torch.bfloat16 if bf16 else torch.float32)

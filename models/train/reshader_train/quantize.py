@@ -245,6 +245,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--threads", type=int, default=0, help="torch threads (0: default)")
     p.add_argument("--val-examples", type=int, default=16)
+    p.add_argument(
+        "--loss-weights",
+        help="L1,VGG,STYLE as for train (default: the weights the checkpoint was trained with)",
+    )
     p.add_argument("--feature-net", default="auto", help="as for train (auto|vgg19|hed-vgg16)")
     p.add_argument("--vgg-weights", help="torchvision VGG-19 state dict")
     p.add_argument("--feature-precision", choices=("auto", "float32", "bfloat16"), default="auto")
@@ -268,8 +272,7 @@ def held_out_psnr(net: ReshadeNet, root: Path, count: int) -> dict[str, float]:
 
 def qat(args: argparse.Namespace) -> dict:
     from .evaluate import load_checkpoint_model
-    from .features import load_feature_net
-    from .losses import ReshadeLoss, bf16_is_fast
+    from .losses import LossWeights, make_loss
 
     if args.threads > 0:
         torch.set_num_threads(args.threads)
@@ -284,15 +287,14 @@ def qat(args: argparse.Namespace) -> dict:
         validation["fp32"] = held_out_psnr(float_net, args.val_data, args.val_examples)
         validation["int8_ptq"] = held_out_psnr(net, args.val_data, args.val_examples)
 
-    feature_net = load_feature_net(args.feature_net, args.vgg_weights)
-    bf16 = args.feature_precision == "bfloat16" or (
-        args.feature_precision == "auto" and bf16_is_fast(torch.device("cpu"))
+    weights = LossWeights.parse(args.loss_weights or base.get("loss_weights") or str(LossWeights()))
+    criterion = make_loss(
+        weights, args.feature_net, args.vgg_weights, args.feature_precision, torch.device("cpu")
     )
-    criterion = ReshadeLoss(feature_net, feature_dtype=torch.bfloat16 if bf16 else torch.float32)
-    if base.get("feature_net") and base["feature_net"] != feature_net.ident:
+    if base.get("feature_net") and base["feature_net"] != criterion.ident:
         print(
             f"warning: {args.checkpoint} was trained with {base['feature_net']}; fine-tuning "
-            f"with {feature_net.ident}",
+            f"with {criterion.ident}",
             file=sys.stderr,
         )
     opt = torch.optim.Adam(net.parameters(), lr=args.lr)
@@ -321,7 +323,8 @@ def qat(args: argparse.Namespace) -> dict:
         "net_config": net.cfg.to_json(),
         "quantization": {**SCHEME, "method": "qat", "calibration_batches": args.calib_batches},
         "step": int(base.get("step", 0)) + args.steps,
-        "feature_net": feature_net.ident,
+        "feature_net": criterion.ident,
+        "loss_weights": str(weights),
         "args": base.get("args", {}),
         "base_checkpoint": str(args.checkpoint.resolve()),
         "base_step": base.get("step"),

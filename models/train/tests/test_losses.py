@@ -11,7 +11,7 @@ from reshader_train.features import (
     load_hed_vgg16,
     load_vgg19,
 )
-from reshader_train.losses import ReshadeLoss, gram
+from reshader_train.losses import LossWeights, ReshadeLoss, gram
 
 
 @pytest.fixture(scope="module")
@@ -113,3 +113,27 @@ def test_bfloat16_features_track_float32(hed):
     assert p16["style"] == pytest.approx(p32["style"], rel=0.1)
     total.backward()
     assert pred.grad.abs().sum() > 0
+
+
+def test_loss_weights_parse_and_refuse():
+    w = LossWeights.parse("0.1,0,0")
+    assert (w.l1, w.vgg, w.style) == (0.1, 0.0, 0.0) and not w.needs_features
+    assert LossWeights.parse(str(LossWeights())) == LossWeights()
+    for bad in ("0.1,0", "a,b,c", "0,0,0", "-1,0,0"):
+        with pytest.raises(ValueError, match="--loss-weights"):
+            LossWeights.parse(bad)
+
+
+def test_pixel_only_loss_runs_without_a_feature_network(hed):
+    with pytest.raises(ValueError, match="feature network"):
+        ReshadeLoss(None, LossWeights())
+    pixels = ReshadeLoss(None, LossWeights.parse("0.1,0,0"))
+    g = torch.Generator().manual_seed(2)
+    target = torch.rand(1, 3, 16, 16, generator=g)
+    pred = (target + 0.05 * torch.randn(1, 3, 16, 16, generator=g)).requires_grad_()
+    mask = torch.ones(1, 1, 16, 16)
+    total, parts = pixels(pred, target, mask)
+    assert parts["vgg"] == 0.0 and parts["style"] == 0.0
+    assert float(total) == pytest.approx(0.1 * parts["l1"])
+    full_total, _ = ReshadeLoss(hed)(pred, target, mask)
+    assert float(full_total) > float(total)

@@ -39,7 +39,11 @@ def add_arguments(parser) -> None:
     parser.add_argument("--seed", type=int, default=0, help="dataset seed (default 0)")
     parser.add_argument("--size", default="256x192", help="WIDTHxHEIGHT (default 256x192)")
     parser.add_argument("--spp", type=int, default=64, help="samples per pixel (default 64)")
-    parser.add_argument("--shard", default="0/1", help="render only indices i, i+n, ... (I/N)")
+    parser.add_argument(
+        "--shard",
+        default="0/1",
+        help="render only indices I, I+N, I+2N, ... (I/N, I counts from 0; default 0/1)",
+    )
     parser.add_argument("--threads", type=int, default=None, help="Dr.Jit threads (default all)")
     parser.add_argument(
         "--radius", default="0.1,0.3", help="novel camera shell radii MIN,MAX (default 0.1,0.3)"

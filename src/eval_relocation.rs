@@ -8,11 +8,13 @@
 //!
 //! - **input**: the input image itself, unmoved (the floor any method must beat);
 //! - **mesh-warp**: [`MeshWarp`], the first forward-warp renderer;
-//! - **ldi**: the layered depth image ([`Ldi`]).
+//! - **ldi**: the layered depth image ([`Ldi`]) as the runtime configures it.
 //!
 //! each once with the input's colours (relocation alone) and once with the rendered
 //! `reshaded.exr` (relocation + reshading, with the renderer's ground-truth reshading:
-//! an upper bound for the network). PSNR and SSIM are computed against `novel.exr`
+//! an upper bound for the network). With reshaded colours the LDI is also scored with
+//! its background band keeping the colours inpainted from the input
+//! ([`BandColours::Inpainted`]) instead of taking them from the view's reshaded image. PSNR and SSIM are computed against `novel.exr`
 //! over valid pixels (mask.png), split into pixels the input sees (the LDI renders them
 //! entirely from original pixels) and the disoccluded band (entirely from inpainted
 //! background or hole filling). HDR images are tone-mapped with a fixed exposure and
@@ -23,10 +25,13 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use crate::depth::{read_raw, DepthMap};
-use crate::ldi::{view_reach, Ldi, LdiConfig};
+use crate::ldi::{view_reach, BandColours, Ldi, LdiConfig};
 use crate::photo::SrgbImage;
 use crate::relocate::{MeshWarp, RelocateError, Relocator};
 use crate::views::{Intrinsics, ViewCamera};
+
+/// Images per row of a contact sheet.
+pub const SHEET_COLUMNS: usize = 4;
 
 /// Depth given to pixels that see the sky (+inf in depth.exr), in scene units.
 pub const SKY_DEPTH: f32 = 1000.0;
@@ -56,6 +61,18 @@ pub enum EvalError {
     Empty(PathBuf),
 }
 
+pub const EVAL_ABOUT: &str = "\
+Score the relocation methods against ground-truth novel views rendered by the dataset
+renderer (models/train: one folder per example with input.exr, reshaded.exr, novel.exr,
+depth.exr, mask.png, meta.json), using the ground-truth depth: the input unmoved, the
+first mesh warp and the layered depth image, each with the input's colours and with the
+rendered reshaded colours. Prints mean PSNR / SSIM over valid pixels, pixels visible in
+the input and the disoccluded band (the paper's Table 1 for our relocators), and the
+LDI's build and per-view render times.
+
+Example:
+  reshader eval-relocation data/reshade/val --sheets sheets/ --json eval.json";
+
 #[derive(Clone, Debug, clap::Args)]
 pub struct EvalArgs {
     /// Dataset split folder, e.g. data/reshade/val.
@@ -70,7 +87,10 @@ pub struct EvalArgs {
     /// Also write the per-example numbers as JSON here.
     #[arg(long)]
     pub json: Option<PathBuf>,
-    /// Write contact sheets (input | mesh-warp | ldi | ground truth, relocation alone) here.
+    /// Write contact sheets here, one PNG per example: top row relocation alone (input |
+    /// mesh-warp | ldi | ground-truth novel view), bottom row the same with the
+    /// ground-truth reshaded colours (reshaded input | mesh-warp | ldi | disoccluded band
+    /// in magenta over the LDI view).
     #[arg(long)]
     pub sheets: Option<PathBuf>,
 }
@@ -301,13 +321,27 @@ fn evaluate(ex: &Example) -> Result<(ExampleReport, Vec<SrgbImage>), EvalError> 
         .render(&ex.reshaded, &ex.depth, &ex.source, &view)
         .map_err(fail)?;
     let ldi_reshaded = ldi.render(&ex.reshaded, &view).map_err(fail)?;
-    let predictions: [(&'static str, bool, &SrgbImage); 6] = [
+    let inpainted_config = LdiConfig {
+        band_colours: BandColours::Inpainted,
+        ..config
+    };
+    let ldi_inpainted = Ldi::build(
+        &ex.input,
+        &ex.depth,
+        &ex.source,
+        &inpainted_config,
+        view_reach(ex.offset, &ex.source),
+    )
+    .and_then(|l| l.render(&ex.reshaded, &view))
+    .map_err(fail)?;
+    let predictions: [(&'static str, bool, &SrgbImage); 7] = [
         ("input", false, &ex.input),
         ("input", true, &ex.reshaded),
         ("mesh-warp", false, &warp_plain),
         ("mesh-warp", true, &warp_reshaded),
         ("ldi", false, &plain.image),
         ("ldi", true, &ldi_reshaded),
+        ("ldi, band keeps inpainted colours", true, &ldi_inpainted),
     ];
     let scores = predictions
         .iter()
@@ -323,7 +357,17 @@ fn evaluate(ex: &Example) -> Result<(ExampleReport, Vec<SrgbImage>), EvalError> 
             }
         })
         .collect();
-    let sheet = vec![ex.input.clone(), warp_plain, plain.image, ex.novel.clone()];
+    let band = highlight(&ldi_reshaded, &disoccluded);
+    let sheet = vec![
+        ex.input.clone(),
+        warp_plain,
+        plain.image,
+        ex.novel.clone(),
+        ex.reshaded.clone(),
+        warp_reshaded,
+        ldi_reshaded,
+        band,
+    ];
     let report = ExampleReport {
         id: ex.id.clone(),
         size: [ex.source.width, ex.source.height],
@@ -334,6 +378,18 @@ fn evaluate(ex: &Example) -> Result<(ExampleReport, Vec<SrgbImage>), EvalError> 
         mesh_warp_render_ms,
     };
     Ok((report, sheet))
+}
+
+/// `image` with the pixels of `mask` tinted magenta.
+fn highlight(image: &SrgbImage, mask: &[bool]) -> SrgbImage {
+    let mut out = image.clone();
+    let w = image.width() as usize;
+    for (i, _) in mask.iter().enumerate().filter(|(_, &m)| m) {
+        let (x, y) = ((i % w) as u32, (i / w) as u32);
+        let [r, g, b] = out.get(x, y);
+        out.put(x, y, [0.5 + 0.5 * r, 0.5 * g, 0.5 + 0.5 * b]);
+    }
+    out
 }
 
 fn ms(start: Instant) -> f64 {
@@ -420,11 +476,19 @@ fn blur(v: &[f32], w: usize, h: usize) -> Vec<f32> {
     pass(&pass(v, true), false)
 }
 
+/// Lays `images` out in rows of [`SHEET_COLUMNS`].
 fn write_sheet(dir: &Path, id: &str, images: &[SrgbImage]) -> Result<(), EvalError> {
     let (w, h) = (images[0].width(), images[0].height());
-    let mut sheet = image::RgbImage::new(w * images.len() as u32, h);
+    let rows = images.len().div_ceil(SHEET_COLUMNS) as u32;
+    let mut sheet = image::RgbImage::new(w * SHEET_COLUMNS as u32, h * rows);
     for (k, img) in images.iter().enumerate() {
-        image::imageops::replace(&mut sheet, &img.to_rgb8(), i64::from(w) * k as i64, 0);
+        let (col, row) = ((k % SHEET_COLUMNS) as i64, (k / SHEET_COLUMNS) as i64);
+        image::imageops::replace(
+            &mut sheet,
+            &img.to_rgb8(),
+            i64::from(w) * col,
+            i64::from(h) * row,
+        );
     }
     let path = dir.join(format!("{id}.png"));
     let io = |e: String| EvalError::Meta {

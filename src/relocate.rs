@@ -1,12 +1,17 @@
 //! Relocation: rendering the photo's colours from another camera.
 //!
-//! [`MeshWarp`] is the first implementation: the depth map becomes a triangle mesh with a
-//! vertex per pixel centre; triangles that the view would stretch across a depth edge are
-//! cut, the rest are rasterised with a z-buffer, and the holes left behind
-//! (disocclusions) take the colour of the farthest rendered pixel around them, so
-//! foreground is never smeared over what it uncovers.
+//! A [`Relocator`] first prepares a photo once (its depth and camera, and colours that
+//! guide any inpainting), then renders each view from that preparation with the view's
+//! own (reshaded) colours. Two implementations sit behind it: the layered depth image
+//! ([`crate::ldi::LdiRelocator`], the default) and [`MeshWarp`], the first forward-warp
+//! renderer, kept for comparison: the depth map becomes a triangle mesh with a vertex per
+//! pixel centre; triangles that the view would stretch across a depth edge are cut, the
+//! rest are rasterised with a z-buffer, and the holes left behind (disocclusions) take
+//! the colour of the farthest rendered pixel around them, so foreground is never smeared
+//! over what it uncovers.
 
 use crate::depth::DepthMap;
+use crate::ldi::{view_reach, Border, LdiConfig, LdiRelocator};
 use crate::photo::SrgbImage;
 use crate::views::{Intrinsics, ViewCamera};
 
@@ -26,19 +31,104 @@ pub enum RelocateError {
     },
 }
 
-/// Renders the view seen by `view` of a photo whose colours and depth were taken by the
-/// `source` camera. Colours may already be reshaded for this view.
-pub trait Relocator {
+/// Renders the views of a photo whose colours and depth were taken by the `source`
+/// camera.
+pub trait Relocator: Send + Sync {
     /// What run.json records under "relocate".
     fn description(&self) -> String;
 
+    /// The per-photo work, done once: `colours` guide inpainting (each view brings its
+    /// own colours to [`PreparedRelocation::render`]), `reach` is the largest view
+    /// offset to serve (see [`reach_of`]); farther views still render, with less
+    /// background behind occluders.
+    fn prepare<'a>(
+        &'a self,
+        colours: &SrgbImage,
+        depth: &DepthMap,
+        source: &Intrinsics,
+        reach: f64,
+    ) -> Result<Box<dyn PreparedRelocation + 'a>, RelocateError>;
+
+    /// One view on its own: prepares for just this view and renders it.
     fn render(
         &self,
         colours: &SrgbImage,
         depth: &DepthMap,
         source: &Intrinsics,
         view: &ViewCamera,
-    ) -> Result<SrgbImage, RelocateError>;
+    ) -> Result<SrgbImage, RelocateError> {
+        self.prepare(colours, depth, source, reach_of([view.centre], source))?
+            .render(colours, view)
+    }
+}
+
+/// A photo prepared by a [`Relocator`].
+pub trait PreparedRelocation {
+    /// The view seen by `view`, with `colours` (the view's reshaded image, in the
+    /// source camera's frame, at the prepared size).
+    fn render(&self, colours: &SrgbImage, view: &ViewCamera) -> Result<SrgbImage, RelocateError>;
+}
+
+/// The reach a preparation needs to serve cameras at `centres`: the largest equivalent
+/// sideways offset among them (see [`view_reach`]).
+pub fn reach_of(centres: impl IntoIterator<Item = [f64; 3]>, source: &Intrinsics) -> f64 {
+    centres
+        .into_iter()
+        .map(|c| view_reach(c, source))
+        .fold(0.0, f64::max)
+}
+
+/// Which relocator the runtime uses.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
+pub enum RelocateKind {
+    /// Layered depth image: cut at depth edges, background inpainted behind occluders.
+    #[default]
+    Ldi,
+    /// The first forward-warp renderer (depth mesh, background-side hole filling).
+    Mesh,
+}
+
+/// What the relocation options of `render`, `view`, `convert`, `watch` ask for.
+#[derive(Clone, Debug, clap::Args)]
+pub struct RelocateArgs {
+    /// Relocation method: the layered depth image, or the first mesh warp (for comparison).
+    #[arg(long = "relocate", value_enum, default_value_t = RelocateKind::Ldi)]
+    pub kind: RelocateKind,
+    /// Beyond the photo's borders (LDI): stretch the border pixels outwards, or magnify
+    /// every view slightly so the border never shows.
+    #[arg(long, value_enum, default_value_t = BorderArg::Extend)]
+    pub border: BorderArg,
+}
+
+impl Default for RelocateArgs {
+    fn default() -> Self {
+        Self {
+            kind: RelocateKind::Ldi,
+            border: BorderArg::Extend,
+        }
+    }
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum BorderArg {
+    Extend,
+    Crop,
+}
+
+impl RelocateArgs {
+    /// The one constructor of the runtime's relocator (CLI, gallery, benchmark).
+    pub fn build(&self) -> Box<dyn Relocator> {
+        match self.kind {
+            RelocateKind::Ldi => Box::new(LdiRelocator::new(LdiConfig {
+                border: match self.border {
+                    BorderArg::Extend => Border::Extend,
+                    BorderArg::Crop => Border::Crop,
+                },
+                ..LdiConfig::default()
+            })),
+            RelocateKind::Mesh => Box::new(MeshWarp::default()),
+        }
+    }
 }
 
 /// Depth-mesh rasterisation with background-side hole filling.
@@ -85,13 +175,32 @@ impl Relocator for MeshWarp {
         )
     }
 
-    fn render(
-        &self,
+    /// The mesh is re-projected per view, so preparing only keeps the depth.
+    fn prepare<'a>(
+        &'a self,
         colours: &SrgbImage,
         depth: &DepthMap,
         source: &Intrinsics,
-        view: &ViewCamera,
-    ) -> Result<SrgbImage, RelocateError> {
+        _reach: f64,
+    ) -> Result<Box<dyn PreparedRelocation + 'a>, RelocateError> {
+        check_sizes(colours, depth, source)?;
+        Ok(Box::new(PreparedMesh {
+            warp: *self,
+            depth: depth.clone(),
+            source: *source,
+        }))
+    }
+}
+
+struct PreparedMesh {
+    warp: MeshWarp,
+    depth: DepthMap,
+    source: Intrinsics,
+}
+
+impl PreparedRelocation for PreparedMesh {
+    fn render(&self, colours: &SrgbImage, view: &ViewCamera) -> Result<SrgbImage, RelocateError> {
+        let (depth, source) = (&self.depth, &self.source);
         check_sizes(colours, depth, source)?;
         let vertices = project_vertices(depth, source, view);
         let mut frame = Frame::new(
@@ -111,7 +220,7 @@ impl Relocator for MeshWarp {
                 for tri in [[a, b, c], [b, d, c]] {
                     let corners = tri.map(|i| vertices[i]);
                     if corners.iter().all(|v| v.valid)
-                        && stretch(&corners, tri, w, scale) <= self.cut_px
+                        && stretch(&corners, tri, w, scale) <= self.warp.cut_px
                     {
                         let tri_colours = tri.map(|i| pixel(colours, i, w));
                         frame.rasterise(corners, tri_colours);
@@ -121,6 +230,47 @@ impl Relocator for MeshWarp {
         }
         let horizontal = view.centre[0].abs() >= view.centre[1].abs();
         Ok(frame.fill_holes_from_background(horizontal))
+    }
+}
+
+/// Calls `visit(pixel index, barycentric weights)` for every pixel centre of a
+/// `width`×`height` grid inside the triangle with screen corners `p`. Edges count as
+/// inside, with a little slack, so pixels on an edge two triangles share or on a mesh
+/// border are never lost; f64 keeps that true for 12-megapixel frames, where f32
+/// rounding of the edge functions exceeds the slack. Shared by both relocators.
+pub(crate) fn raster_triangle(
+    p: [[f64; 2]; 3],
+    width: usize,
+    height: usize,
+    mut visit: impl FnMut(usize, [f64; 3]),
+) {
+    let area =
+        (p[1][0] - p[0][0]) * (p[2][1] - p[0][1]) - (p[2][0] - p[0][0]) * (p[1][1] - p[0][1]);
+    if area.abs() < 1e-12 {
+        return;
+    }
+    let min_u = p[0][0].min(p[1][0]).min(p[2][0]);
+    let max_u = p[0][0].max(p[1][0]).max(p[2][0]);
+    let min_v = p[0][1].min(p[1][1]).min(p[2][1]);
+    let max_v = p[0][1].max(p[1][1]).max(p[2][1]);
+    // The bounds get the same slack as the edge test: a vertex that should sit on a
+    // pixel centre may land a rounding error beyond it.
+    const EPS: f64 = 1e-7;
+    let x0 = (min_u - 0.5 - EPS).ceil().max(0.0) as usize;
+    let y0 = (min_v - 0.5 - EPS).ceil().max(0.0) as usize;
+    let x1 = ((max_u - 0.5 + EPS).floor() + 1.0).clamp(0.0, width as f64) as usize;
+    let y1 = ((max_v - 0.5 + EPS).floor() + 1.0).clamp(0.0, height as f64) as usize;
+    for y in y0..y1 {
+        let pv = y as f64 + 0.5;
+        for x in x0..x1 {
+            let pu = x as f64 + 0.5;
+            let w0 = ((p[1][0] - pu) * (p[2][1] - pv) - (p[2][0] - pu) * (p[1][1] - pv)) / area;
+            let w1 = ((p[2][0] - pu) * (p[0][1] - pv) - (p[0][0] - pu) * (p[2][1] - pv)) / area;
+            let w2 = 1.0 - w0 - w1;
+            if w0 >= -EPS && w1 >= -EPS && w2 >= -EPS {
+                visit(y * width + x, [w0, w1, w2]);
+            }
+        }
     }
 }
 
@@ -138,7 +288,8 @@ fn stretch(corners: &[Vertex; 3], tri: [usize; 3], width: usize, scale: f64) -> 
     dist(p[0], p[1]).max(dist(p[1], p[2])).max(dist(p[0], p[2]))
 }
 
-fn check_sizes(
+/// Colours, depth and camera of one photo must have one size.
+pub(crate) fn check_sizes(
     colours: &SrgbImage,
     depth: &DepthMap,
     source: &Intrinsics,
@@ -200,48 +351,22 @@ impl Frame {
         }
     }
 
-    /// Fills the pixel centres inside the triangle (edges inclusive, so that pixels on a
-    /// shared edge or at the mesh border are not lost) where it is nearer than what is
+    /// Fills the pixel centres inside the triangle where it is nearer than what is
     /// there. 1/z is affine in screen space, so it is interpolated linearly.
     fn rasterise(&mut self, p: [Vertex; 3], colours: [[f32; 3]; 3]) {
-        let area = (p[1].u - p[0].u) * (p[2].v - p[0].v) - (p[2].u - p[0].u) * (p[1].v - p[0].v);
-        if area.abs() < 1e-12 {
-            return;
-        }
-        let min_u = p.iter().map(|v| v.u).fold(f64::MAX, f64::min);
-        let max_u = p.iter().map(|v| v.u).fold(f64::MIN, f64::max);
-        let min_v = p.iter().map(|v| v.v).fold(f64::MAX, f64::min);
-        let max_v = p.iter().map(|v| v.v).fold(f64::MIN, f64::max);
-        // The bounds get the same slack as the edge test: a vertex that should sit on a
-        // pixel centre may land a rounding error beyond it.
-        const EPS: f64 = 1e-7;
-        let x0 = (min_u - 0.5 - EPS).ceil().max(0.0) as usize;
-        let y0 = (min_v - 0.5 - EPS).ceil().max(0.0) as usize;
-        let x1 = ((max_u - 0.5 + EPS).floor() + 1.0).clamp(0.0, self.width as f64) as usize;
-        let y1 = ((max_v - 0.5 + EPS).floor() + 1.0).clamp(0.0, self.height as f64) as usize;
-        for y in y0..y1 {
-            let pv = y as f64 + 0.5;
-            for x in x0..x1 {
-                let pu = x as f64 + 0.5;
-                let w0 = ((p[1].u - pu) * (p[2].v - pv) - (p[2].u - pu) * (p[1].v - pv)) / area;
-                let w1 = ((p[2].u - pu) * (p[0].v - pv) - (p[0].u - pu) * (p[2].v - pv)) / area;
-                let w2 = 1.0 - w0 - w1;
-                if w0 < -EPS || w1 < -EPS || w2 < -EPS {
-                    continue;
-                }
-                let inv_z = w0 * p[0].inv_z + w1 * p[1].inv_z + w2 * p[2].inv_z;
-                let i = y * self.width + x;
-                let z = (1.0 / inv_z) as f32;
-                if self.depth[i] == 0.0 || z < self.depth[i] {
-                    self.depth[i] = z;
-                    self.colour[i] = std::array::from_fn(|c| {
-                        (w0 as f32) * colours[0][c]
-                            + (w1 as f32) * colours[1][c]
-                            + (w2 as f32) * colours[2][c]
-                    });
-                }
+        let (depth, colour) = (&mut self.depth, &mut self.colour);
+        raster_triangle(p.map(|v| [v.u, v.v]), self.width, self.height, |i, b| {
+            let inv_z = b[0] * p[0].inv_z + b[1] * p[1].inv_z + b[2] * p[2].inv_z;
+            let z = (1.0 / inv_z) as f32;
+            if depth[i] == 0.0 || z < depth[i] {
+                depth[i] = z;
+                colour[i] = std::array::from_fn(|c| {
+                    (b[0] as f32) * colours[0][c]
+                        + (b[1] as f32) * colours[1][c]
+                        + (b[2] as f32) * colours[2][c]
+                });
             }
-        }
+        });
     }
 
     /// Each uncovered pixel is filled from the farther of the nearest covered pixels on

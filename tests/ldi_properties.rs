@@ -4,8 +4,9 @@ mod ldi_support;
 
 use ldi_support::*;
 use reshader::depth::DepthMap;
-use reshader::ldi::{Border, Ldi, LdiConfig, LdiRelocator};
+use reshader::ldi::{BandColours, Border, Ldi, LdiConfig, LdiRelocator};
 use reshader::photo::SrgbImage;
+use reshader::relocate::reach_of;
 use reshader::relocate::{RelocateError, Relocator};
 
 /// A small deterministic generator for random scenes.
@@ -179,29 +180,61 @@ fn each_view_takes_the_front_colours_from_its_own_image() {
 }
 
 #[test]
-fn the_relocator_builds_once_and_rebuilds_for_a_wider_reach() {
+fn the_relocator_prepares_once_and_renders_every_view_from_it() {
     let scene = random_scene(7);
     let depth = scene.depth_map();
     let relocator = LdiRelocator::default();
-    let near = view(0.1, 3.5);
-    let far = view(-0.3, 3.5);
-    let first = relocator
-        .ldi(&scene.colours, &depth, &camera(), &near)
+    let views = [view(-0.3, 3.5), view(0.1, 3.5), view(0.3, 3.5)];
+    let reach = reach_of(views.iter().map(|v| v.centre), &camera());
+    assert!((reach - 0.3).abs() < 1e-12);
+    let prepared = relocator
+        .prepare(&scene.colours, &depth, &camera(), reach)
         .unwrap();
-    let again = relocator
-        .ldi(&scene.colours, &depth, &camera(), &near)
+    let ldi = scene.build(&LdiConfig::default(), reach);
+    for v in &views {
+        let image = prepared.render(&scene.colours, v).unwrap();
+        assert_eq!(image, ldi.render(&scene.colours, v).unwrap());
+    }
+    // One view on its own prepares for exactly that view.
+    let alone = relocator
+        .render(&scene.colours, &depth, &camera(), &views[0])
         .unwrap();
-    assert!(std::sync::Arc::ptr_eq(&first, &again));
-    let wider = relocator
-        .ldi(&scene.colours, &depth, &camera(), &far)
-        .unwrap();
-    assert!(!std::sync::Arc::ptr_eq(&first, &wider));
-    assert!(wider.stats().reach > first.stats().reach);
-    let through_trait = relocator
-        .render(&scene.colours, &depth, &camera(), &far)
-        .unwrap();
-    assert_eq!(through_trait, wider.render(&scene.colours, &far).unwrap());
+    assert_eq!(alone, ldi.render(&scene.colours, &views[0]).unwrap());
     assert!(relocator.description().contains("layered depth image"));
+}
+
+#[test]
+fn inpainted_band_colours_do_not_follow_the_view_image() {
+    let scene = Scene::wall(4.0).rect(20..40, 10..38, RED, 1.0);
+    let config = LdiConfig {
+        band_colours: BandColours::Inpainted,
+        ..LdiConfig::default()
+    };
+    let ldi = scene.build(&config, 0.2);
+    let mut dim = scene.colours.clone();
+    for y in 0..H as u32 {
+        for x in 0..W as u32 {
+            dim.put(x, y, scene.colours.get(x, y).map(|c| c * 0.5));
+        }
+    }
+    let v = view(0.2, 4.0);
+    let bright = ldi.render_detailed(&scene.colours, &v).unwrap();
+    let dark = ldi.render(&dim, &v).unwrap();
+    let (mut band, mut front) = (0, 0);
+    for (i, &f) in bright.front_fraction.iter().enumerate() {
+        let (b, d) = (
+            &bright.image.data()[3 * i..3 * i + 3],
+            &dark.data()[3 * i..3 * i + 3],
+        );
+        if f == 0.0 {
+            band += 1;
+            assert_eq!(b, d, "band pixel {i} changed with the view's colours");
+        } else if f == 1.0 {
+            front += 1;
+            assert!(b.iter().zip(d).all(|(b, d)| (d - 0.5 * b).abs() < 1e-6));
+        }
+    }
+    assert!(band > 100 && front > 1000, "{band} {front}");
 }
 
 #[test]

@@ -18,12 +18,9 @@ mod edges;
 mod mesh;
 mod render;
 
-use std::hash::{Hash, Hasher};
-use std::sync::{Arc, Mutex};
-
 use crate::depth::DepthMap;
 use crate::photo::SrgbImage;
-use crate::relocate::{RelocateError, Relocator};
+use crate::relocate::{check_sizes, PreparedRelocation, RelocateError, Relocator};
 use crate::views::{Intrinsics, ViewCamera};
 
 use render::Origin;
@@ -38,6 +35,17 @@ pub enum Border {
     /// Every view is magnified about its centre by the same factor, enough that the
     /// border never enters the frame; nothing is invented, the framing is slightly tighter.
     Crop,
+}
+
+/// Where the inpainted background behind occluders takes its colours from in a view.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum BandColours {
+    /// From the view's own (reshaded) image, at the pixel each band sample was
+    /// inpainted from: the hidden background is shaded like the visible background.
+    View,
+    /// The colours inpainted at build time, the same in every view.
+    Inpainted,
 }
 
 #[derive(Clone, Debug, PartialEq)]
@@ -59,9 +67,7 @@ pub struct LdiConfig {
     /// Subsamples per output pixel along each axis (anti-aliasing).
     pub supersampling: usize,
     pub border: Border,
-    /// Largest view offset to build for (scene units); `None` takes it from the views
-    /// rendered and rebuilds if a later view moves farther.
-    pub max_offset: Option<f64>,
+    pub band_colours: BandColours,
 }
 
 impl Default for LdiConfig {
@@ -75,7 +81,7 @@ impl Default for LdiConfig {
             random_candidates: 6,
             supersampling: 2,
             border: Border::Extend,
-            max_offset: None,
+            band_colours: BandColours::View,
         }
     }
 }
@@ -103,6 +109,8 @@ pub struct Ldi {
     mesh: mesh::Mesh,
     border: Border,
     supersampling: usize,
+    /// Build-time colours of the band samples, with [`BandColours::Inpainted`].
+    band_rgb: Option<Vec<[f32; 3]>>,
     stats: LdiStats,
 }
 
@@ -201,11 +209,18 @@ impl Ldi {
             border_margin_px: margin,
         };
         log::info!("LDI built: {stats:?}");
+        let band_rgb = (config.band_colours == BandColours::Inpainted).then(|| {
+            band.source
+                .iter()
+                .map(|&i| colours.get(i % w as u32, i / w as u32))
+                .collect()
+        });
         Ok(Self {
             source: *source,
             mesh,
             border: config.border,
             supersampling: config.supersampling.max(1),
+            band_rgb,
             stats,
         })
     }
@@ -268,6 +283,7 @@ impl Ldi {
         let k = frame.factor;
         let (ow, oh) = (frame.width / k, frame.height / k);
         let data = colours.data();
+        let front_samples = self.stats.width * self.stats.height;
         let mut image = SrgbImage::new(ow as u32, oh as u32);
         let mut front_fraction = vec![0.0; ow * oh];
         let mut hole_fraction = vec![0.0; ow * oh];
@@ -278,9 +294,16 @@ impl Ldi {
                 for sy in 0..k {
                     for sx in 0..k {
                         let i = (y * k + sy) * frame.width + x * k + sx;
-                        let from = self.mesh.samples[frame.sample[i] as usize].colour_from as usize;
+                        let s = frame.sample[i] as usize;
+                        let colour = match &self.band_rgb {
+                            Some(band) if s >= front_samples => band[s - front_samples],
+                            _ => {
+                                let from = 3 * self.mesh.samples[s].colour_from as usize;
+                                [data[from], data[from + 1], data[from + 2]]
+                            }
+                        };
                         for c in 0..3 {
-                            rgb[c] += data[3 * from + c] * weight;
+                            rgb[c] += colour[c] * weight;
                         }
                         match frame.origin[i] {
                             Origin::Front => front += weight,
@@ -314,66 +337,15 @@ fn supersampled(k: &Intrinsics, factor: usize) -> Intrinsics {
     }
 }
 
-fn check_sizes(
-    colours: &SrgbImage,
-    depth: &DepthMap,
-    source: &Intrinsics,
-) -> Result<(), RelocateError> {
-    let c = (colours.width() as usize, colours.height() as usize);
-    let d = (depth.width(), depth.height());
-    let k = (source.width as usize, source.height as usize);
-    if c != d || c != k {
-        return Err(RelocateError::SizeMismatch {
-            colour_w: colours.width(),
-            colour_h: colours.height(),
-            depth_w: depth.width(),
-            depth_h: depth.height(),
-            camera_w: source.width,
-            camera_h: source.height,
-        });
-    }
-    Ok(())
-}
-
-/// The LDI behind the [`Relocator`] interface. The interface hands over depth with
-/// every view, so the LDI is built on the first view of a photo and kept while depth
-/// and camera stay the same; the first view's colours guide the inpainting.
+/// The LDI behind the [`Relocator`] interface: built in [`Relocator::prepare`], once
+/// per photo, and rendered per view.
 pub struct LdiRelocator {
     pub config: LdiConfig,
-    /// The last build and the fingerprint of the depth and camera it was built from.
-    cache: Mutex<Option<(u64, Arc<Ldi>)>>,
 }
 
 impl LdiRelocator {
     pub fn new(config: LdiConfig) -> Self {
-        Self {
-            config,
-            cache: Mutex::new(None),
-        }
-    }
-
-    /// The LDI for this depth and camera, built (or rebuilt for a wider reach) if needed.
-    pub fn ldi(
-        &self,
-        colours: &SrgbImage,
-        depth: &DepthMap,
-        source: &Intrinsics,
-        view: &ViewCamera,
-    ) -> Result<Arc<Ldi>, RelocateError> {
-        let key = fingerprint(depth, source);
-        let reach = self
-            .config
-            .max_offset
-            .unwrap_or_else(|| view_reach(view.centre, source));
-        let mut cache = self.cache.lock().unwrap_or_else(|e| e.into_inner());
-        if let Some((k, ldi)) = cache.as_ref() {
-            if *k == key && ldi.stats.reach >= reach {
-                return Ok(Arc::clone(ldi));
-            }
-        }
-        let ldi = Arc::new(Ldi::build(colours, depth, source, &self.config, reach)?);
-        *cache = Some((key, Arc::clone(&ldi)));
-        Ok(ldi)
+        Self { config }
     }
 }
 
@@ -383,39 +355,44 @@ impl Default for LdiRelocator {
     }
 }
 
-fn fingerprint(depth: &DepthMap, source: &Intrinsics) -> u64 {
-    let mut hasher = std::collections::hash_map::DefaultHasher::new();
-    (depth.width(), depth.height()).hash(&mut hasher);
-    depth
-        .data()
-        .iter()
-        .for_each(|v| v.to_bits().hash(&mut hasher));
-    [source.fx, source.fy, source.cx, source.cy]
-        .map(f64::to_bits)
-        .hash(&mut hasher);
-    hasher.finish()
-}
-
 impl Relocator for LdiRelocator {
     fn description(&self) -> String {
         let c = &self.config;
         format!(
             "layered depth image: cut at {} relative disparity steps (contours >= {} px), \
              background band inpainted by patch synthesis from the background side, \
-             {}x{} supersampling, border {:?}",
-            c.edge_threshold, c.min_contour_px, c.supersampling, c.supersampling, c.border
+             band colours from the {}, {}x{} supersampling, border {:?}",
+            c.edge_threshold,
+            c.min_contour_px,
+            match c.band_colours {
+                BandColours::View => "view's image",
+                BandColours::Inpainted => "build image",
+            },
+            c.supersampling,
+            c.supersampling,
+            c.border
         )
     }
 
-    fn render(
-        &self,
+    fn prepare<'a>(
+        &'a self,
         colours: &SrgbImage,
         depth: &DepthMap,
         source: &Intrinsics,
-        view: &ViewCamera,
-    ) -> Result<SrgbImage, RelocateError> {
-        check_sizes(colours, depth, source)?;
-        self.ldi(colours, depth, source, view)?
-            .render(colours, view)
+        reach: f64,
+    ) -> Result<Box<dyn PreparedRelocation + 'a>, RelocateError> {
+        Ok(Box::new(Ldi::build(
+            colours,
+            depth,
+            source,
+            &self.config,
+            reach,
+        )?))
+    }
+}
+
+impl PreparedRelocation for Ldi {
+    fn render(&self, colours: &SrgbImage, view: &ViewCamera) -> Result<SrgbImage, RelocateError> {
+        Ldi::render(self, colours, view)
     }
 }

@@ -4,6 +4,7 @@
 //! subsamples, which anti-aliases the silhouettes.
 
 use super::mesh::Mesh;
+use crate::relocate::raster_triangle;
 use crate::views::Intrinsics;
 
 /// Where a subsample's colour came from.
@@ -81,8 +82,8 @@ fn project(mesh: &Mesh, centre: [f64; 3], k: &Intrinsics) -> Vec<[f32; 3]> {
         .collect()
 }
 
-/// Writes `id` into the pixel centres inside the triangle (edges inclusive, so shared
-/// edges leave no gaps) where it is nearer than what is there; 1/z is affine on screen.
+/// Writes `id` into the pixel centres inside the triangle where it is nearer than what
+/// is there; 1/z is affine on screen.
 fn fill_triangle(
     p: [[f32; 3]; 3],
     id: u32,
@@ -94,38 +95,14 @@ fn fill_triangle(
     if p.iter().any(|v| v[2] <= 0.0) {
         return;
     }
-    let area =
-        (p[1][0] - p[0][0]) * (p[2][1] - p[0][1]) - (p[2][0] - p[0][0]) * (p[1][1] - p[0][1]);
-    if area.abs() < 1e-9 {
-        return;
-    }
-    let min_u = p[0][0].min(p[1][0]).min(p[2][0]);
-    let max_u = p[0][0].max(p[1][0]).max(p[2][0]);
-    let min_v = p[0][1].min(p[1][1]).min(p[2][1]);
-    let max_v = p[0][1].max(p[1][1]).max(p[2][1]);
-    let x0 = (min_u - 0.5).ceil().max(0.0) as usize;
-    let y0 = (min_v - 0.5).ceil().max(0.0) as usize;
-    let x1 = ((max_u - 0.5).floor() + 1.0).clamp(0.0, w as f32) as usize;
-    let y1 = ((max_v - 0.5).floor() + 1.0).clamp(0.0, h as f32) as usize;
-    let eps = 1e-5;
-    for y in y0..y1 {
-        let pv = y as f32 + 0.5;
-        for x in x0..x1 {
-            let pu = x as f32 + 0.5;
-            let w0 = ((p[1][0] - pu) * (p[2][1] - pv) - (p[2][0] - pu) * (p[1][1] - pv)) / area;
-            let w1 = ((p[2][0] - pu) * (p[0][1] - pv) - (p[0][0] - pu) * (p[2][1] - pv)) / area;
-            let w2 = 1.0 - w0 - w1;
-            if w0 < -eps || w1 < -eps || w2 < -eps {
-                continue;
-            }
-            let z = w0 * p[0][2] + w1 * p[1][2] + w2 * p[2][2];
-            let i = y * w + x;
-            if z > inv_z[i] {
-                inv_z[i] = z;
-                sample[i] = id;
-            }
+    let corners = p.map(|v| [f64::from(v[0]), f64::from(v[1])]);
+    raster_triangle(corners, w, h, |i, b| {
+        let z = b[0] as f32 * p[0][2] + b[1] as f32 * p[1][2] + b[2] as f32 * p[2][2];
+        if z > inv_z[i] {
+            inv_z[i] = z;
+            sample[i] = id;
         }
-    }
+    });
 }
 
 /// Each uncovered subsample takes the sample of the farthest of the nearest covered

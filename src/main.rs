@@ -8,7 +8,7 @@ use reshader::depth::DepthKind;
 use reshader::interleave::{Blend, Board};
 use reshader::output;
 use reshader::pipeline::{self, Product, RenderOptions, Scene, ViewRequest};
-use reshader::relocate::MeshWarp;
+use reshader::relocate::RelocateArgs;
 
 const ABOUT: &str = "Turn one photo and its depth into the views, quilt and woven frame of a \
 lenticular light-field panel.";
@@ -75,6 +75,9 @@ enum Command {
     /// Show a live camera on the panel: capture, views, weave, framebuffer or PNGs.
     #[command(long_about = reshader::capture::live::LIVE_ABOUT)]
     Live(reshader::capture::live::LiveArgs),
+    /// Score relocation methods against rendered novel views (Table 1) and write contact sheets.
+    #[command(long_about = reshader::eval_relocation::EVAL_ABOUT)]
+    EvalRelocation(reshader::eval_relocation::EvalArgs),
     /// Time photo-to-frame conversion stage by stage against onnxruntime and the naive network.
     #[command(long_about = reshader::bench::BENCH_ABOUT)]
     Bench(reshader::bench::BenchArgs),
@@ -141,6 +144,8 @@ struct SceneArgs {
 struct RenderArgs {
     #[command(flatten)]
     scene: SceneArgs,
+    #[command(flatten)]
+    relocate: RelocateArgs,
     /// Built-in board name (see `reshader boards`) or path of a board .toml file.
     #[arg(long)]
     board: String,
@@ -189,6 +194,8 @@ struct ViewArgs {
     /// Skip reshading: relocate the photo's own colours.
     #[arg(long)]
     no_reshade: bool,
+    #[command(flatten)]
+    relocate: RelocateArgs,
 }
 
 #[derive(Args)]
@@ -280,6 +287,10 @@ fn run(command: Command) -> Result<()> {
         Command::Convert(args) => Ok(reshader::gallery::cli::run_convert(&args)?),
         Command::Watch(args) => Ok(reshader::gallery::cli::run_watch(&args)?),
         Command::Live(args) => Ok(reshader::capture::live::run_live(&args)?),
+        Command::EvalRelocation(args) => {
+            reshader::eval_relocation::run(&args)?;
+            Ok(())
+        }
         Command::Bench(args) => {
             let command: Vec<String> = std::env::args().collect();
             reshader::bench::main(&args, &command.join(" "))?;
@@ -313,7 +324,7 @@ fn render(args: RenderArgs) -> Result<()> {
         sbs_pair: args.sbs_pair,
         out_dir: args.out,
     };
-    let record = pipeline::render(&opts, &*reshader, &MeshWarp::default())?;
+    let record = pipeline::render(&opts, &*reshader, &*args.relocate.build())?;
     println!(
         "{}: {} views, wrote {} files to {}",
         opts.board.name(),
@@ -364,7 +375,7 @@ fn view(args: ViewArgs) -> Result<()> {
     let reshader = reshader
         .as_deref()
         .map(|r| r as &dyn reshader::reshade::Reshader);
-    let image = pipeline::render_view(&req, reshader, &MeshWarp::default())?;
+    let image = pipeline::render_view(&req, reshader, &*args.relocate.build())?;
     pipeline::write_image(&single.out, &image)?;
     Ok(())
 }

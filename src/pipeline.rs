@@ -14,7 +14,7 @@ use crate::record::{
     BoardRecord, DepthRecord, FileRecord, Geometry, Inputs, PhotoRecord, RunRecord, Setting,
     Timings, Versions, ViewRecord,
 };
-use crate::relocate::{RelocateError, Relocator};
+use crate::relocate::{self, RelocateError, Relocator};
 use crate::reshade::{ReshadeError, Reshader, TrainingFrame};
 use crate::views::{robust_focus, robust_range, Intrinsics, ViewCamera, ViewError, ViewRig};
 
@@ -265,12 +265,14 @@ fn render_views(
     let prepared = t.time("reshade_prepare", || {
         reshader.prepare(&fitted.image, &training_depth)
     })?;
+    let reach = relocate::reach_of(cameras.iter().map(|c| c.centre), &fitted.source);
+    let relocation = t.time("relocate_prepare", || {
+        relocator.prepare(&fitted.image, &fitted.depth, &fitted.source, reach)
+    })?;
     let mut views = Vec::with_capacity(cameras.len());
     for camera in cameras {
         let colours = t.time("reshade", || prepared.reshade(frame.camera(camera.centre)))?;
-        let view = t.time("relocate", || {
-            relocator.render(&colours, &fitted.depth, &fitted.source, camera)
-        })?;
+        let view = t.time("relocate", || relocation.render(&colours, camera))?;
         views.push(view.to_rgb8());
     }
     log::info!("rendered {} views", views.len());

@@ -14,7 +14,7 @@ use super::watch::{watch, WatchOptions};
 use super::{convert_batch, ConvertReport, Converter, FnConverter, OutLayout, PhotoReport};
 use crate::depth::DepthKind;
 use crate::pipeline::{self, Product, RenderOptions};
-use crate::relocate::MeshWarp;
+use crate::relocate::RelocateArgs;
 use crate::reshade::IdentityReshader;
 
 /// Depth files looked for beside a photo, in order: `NAME_depth.EXT` holds depth in
@@ -59,6 +59,8 @@ pub struct GalleryArgs {
     /// Print one JSON object per photo on stdout (status, outputs, timings_ms, error).
     #[arg(long)]
     pub json: bool,
+    #[command(flatten)]
+    pub relocate: RelocateArgs,
 }
 
 #[derive(clap::Args, Debug)]
@@ -191,7 +193,7 @@ pub fn pipeline_converter(args: &GalleryArgs) -> Result<impl Converter, GalleryE
     let calibration = args.calibration.clone();
     let depthiness = args.depthiness;
     let reshader = IdentityReshader;
-    let relocator = MeshWarp::default();
+    let relocator = args.relocate.build();
     Ok(FnConverter::new(
         fingerprint,
         move |photo: &Path, out_dir: &Path| -> Result<ConvertReport, String> {
@@ -212,7 +214,7 @@ pub fn pipeline_converter(args: &GalleryArgs) -> Result<impl Converter, GalleryE
                 out_dir: out_dir.into(),
             };
             let record =
-                pipeline::render(&opts, &reshader, &relocator).map_err(|e| e.to_string())?;
+                pipeline::render(&opts, &reshader, &*relocator).map_err(|e| e.to_string())?;
             Ok(ConvertReport {
                 outputs: record.outputs.iter().map(|o| out_dir.join(o)).collect(),
                 timings_ms: record
@@ -234,13 +236,14 @@ fn fingerprint(args: &GalleryArgs, board: &Board) -> String {
         .map(|p| crate::record::sha256_file(p).unwrap_or_else(|e| format!("unreadable: {e}")));
     format!(
         "reshader {}; board {} from {}; calibration {:?}; only {:?}; depthiness {:?}; \
-         reshade identity; relocate mesh-warp",
+         reshade identity; relocate {}",
         env!("CARGO_PKG_VERSION"),
         board.name(),
         board.origin(),
         calibration,
         args.only,
-        args.depthiness
+        args.depthiness,
+        args.relocate.build().description()
     )
 }
 

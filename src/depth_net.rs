@@ -32,6 +32,7 @@ use crate::depth_refine::{self, RefineOptions};
 use crate::embedded_depth::{self, Container, EmbeddedDepth, RangeFormat};
 use crate::engine::{Engine, EngineError, ModelSource, Plan, Tensor};
 use crate::manifest::{self, Manifest, ManifestError, Precision, Task, VerifiedModel};
+use crate::record::{FileRecord, Timings};
 use crate::reshade_net::resample;
 
 /// Where the shipped depth models live, relative to the working directory or the source
@@ -798,6 +799,8 @@ pub struct StageReport {
     /// "network" or "embedded".
     pub source: &'static str,
     pub model: Option<String>,
+    /// The network's ONNX file and its sha256 (verified against the manifest at load).
+    pub model_file: Option<FileRecord>,
     pub precision: Option<Precision>,
     pub engine: Option<String>,
     pub output_kind: OutputKind,
@@ -841,6 +844,10 @@ pub fn network_depth(
     let report = StageReport {
         source: "network",
         model: Some(format!("{} {}", m.name, m.version)),
+        model_file: Some(FileRecord {
+            path: net.model.model_path.display().to_string(),
+            sha256: m.sha256.trim().to_ascii_lowercase(),
+        }),
         precision: Some(m.precision),
         engine: Some(format!(
             "{} x{} threads",
@@ -886,6 +893,7 @@ pub fn embedded_scene_depth(
     let report = StageReport {
         source: "embedded",
         model: None,
+        model_file: None,
         precision: None,
         engine: None,
         output_kind: OutputKind::Depth,
@@ -1001,54 +1009,145 @@ impl NetChoice {
     }
 }
 
-/// Scene depth for the photo at `photo_path` (decoded upright as `photo`) from the
-/// chosen source. In `Auto`, unreadable embedded depth is logged and recorded in the
-/// report, and the network is used instead; asked for explicitly, it is an error.
-pub fn photo_depth(
-    photo_path: &Path,
-    photo: &RgbImage,
+/// Depth for photos that come without a depth file: where to take it from, the network
+/// (loaded on first use and kept, so a batch or a camera stream loads it once), and the
+/// stage options.
+pub struct DepthEstimator {
     source: DepthSource,
-    net: &NetChoice,
-    opts: &StageOptions,
-) -> Result<(DepthMap, StageReport), DepthNetError> {
-    let mut embedded_error = None;
-    if source != DepthSource::Network {
-        let found = embedded_depth::read(photo_path)
-            .map_err(|e| e.to_string())
-            .and_then(|found| {
-                found
-                    .map(|f| {
-                        embedded_scene_depth(&f, photo, opts)
-                            .map_err(|e| format!("{}: {e}", photo_path.display()))
-                    })
-                    .transpose()
-            });
-        match (found, source) {
-            (Ok(Some(result)), _) => {
-                log::info!(
-                    "{}: using the depth embedded in the photo",
-                    photo_path.display()
-                );
-                return Ok(result);
-            }
-            (Ok(None), DepthSource::Embedded) => {
-                return Err(DepthNetError::Embedded(format!(
-                    "{} carries no embedded depth (GDepth or Dynamic Depth)",
-                    photo_path.display()
-                )))
-            }
-            (Err(e), DepthSource::Embedded) => return Err(DepthNetError::Embedded(e)),
-            (Err(e), _) => {
-                log::warn!("{e}; estimating depth with the network instead");
-                embedded_error = Some(e);
-            }
-            (Ok(None), _) => {}
+    choice: NetChoice,
+    opts: StageOptions,
+    net: Mutex<Option<Arc<DepthNet>>>,
+}
+
+impl DepthEstimator {
+    pub fn new(source: DepthSource, choice: NetChoice, opts: StageOptions) -> Self {
+        Self {
+            source,
+            choice,
+            opts,
+            net: Mutex::new(None),
         }
     }
-    let net = net.load()?;
-    let (map, mut report) = network_depth(&net, photo, opts)?;
-    report.embedded_error = embedded_error;
-    Ok((map, report))
+
+    pub fn source(&self) -> DepthSource {
+        self.source
+    }
+
+    pub fn options(&self) -> &StageOptions {
+        &self.opts
+    }
+
+    /// The network, loading it on the first call; a failed load is retried next time.
+    pub fn net(&self) -> Result<Arc<DepthNet>, DepthNetError> {
+        let mut slot = self.net.lock().unwrap_or_else(|p| p.into_inner());
+        if let Some(net) = slot.as_ref() {
+            return Ok(Arc::clone(net));
+        }
+        let started = std::time::Instant::now();
+        let net = Arc::new(self.choice.load()?);
+        log::info!(
+            "depth model {} loaded in {:.0} ms",
+            net.model.model_path.display(),
+            started.elapsed().as_secs_f64() * 1e3
+        );
+        *slot = Some(Arc::clone(&net));
+        Ok(net)
+    }
+
+    /// The network; `load_ms` gets the loading time when this call loaded it.
+    fn loaded_net(&self, load_ms: &mut f64) -> Result<Arc<DepthNet>, DepthNetError> {
+        if let Some(net) = self.net.lock().unwrap_or_else(|p| p.into_inner()).as_ref() {
+            return Ok(Arc::clone(net));
+        }
+        let started = std::time::Instant::now();
+        let net = self.net()?;
+        *load_ms = started.elapsed().as_secs_f64() * 1e3;
+        Ok(net)
+    }
+
+    /// Everything that changes the estimated depth, for the gallery's fingerprint.
+    pub fn describe(&self) -> String {
+        let model = match &self.choice.model {
+            Some(path) => path.display().to_string(),
+            None => format!("{DEFAULT_MODEL}-{}", self.choice.precision),
+        };
+        format!(
+            "depth {:?} model {model} near {} budget {} refine {:?}",
+            self.source, self.opts.scale.near, self.opts.scale.budget, self.opts.refine
+        )
+    }
+
+    /// Scene depth for the photo at `photo_path` (decoded upright as `photo`). In `Auto`,
+    /// unreadable embedded depth is logged and recorded in the report, and the network is
+    /// used instead; asked for explicitly, it is an error.
+    ///
+    /// Loading the network (first use only) is timed in `t` as `depth_model`; the
+    /// report's `time_ms` is the rest of the stage, and `t` gets it as `depth`.
+    pub fn depth(
+        &self,
+        photo_path: &Path,
+        photo: &RgbImage,
+        t: &mut Timings,
+    ) -> Result<(DepthMap, StageReport), DepthNetError> {
+        let started = std::time::Instant::now();
+        let mut load_ms = 0.0;
+        let (map, mut report) = self.find(photo_path, photo, &mut load_ms)?;
+        report.time_ms = started.elapsed().as_secs_f64() * 1e3 - load_ms;
+        if load_ms > 0.0 {
+            t.add("depth_model", load_ms);
+        }
+        t.add("depth", report.time_ms);
+        Ok((map, report))
+    }
+
+    fn find(
+        &self,
+        photo_path: &Path,
+        photo: &RgbImage,
+        load_ms: &mut f64,
+    ) -> Result<(DepthMap, StageReport), DepthNetError> {
+        let mut embedded_error = None;
+        if self.source != DepthSource::Network {
+            match (self.embedded(photo_path, photo), self.source) {
+                (Ok(Some(result)), _) => {
+                    log::info!(
+                        "{}: using the depth embedded in the photo",
+                        photo_path.display()
+                    );
+                    return Ok(result);
+                }
+                (Ok(None), DepthSource::Embedded) => {
+                    return Err(DepthNetError::Embedded(format!(
+                        "{} carries no embedded depth (GDepth or Dynamic Depth)",
+                        photo_path.display()
+                    )))
+                }
+                (Err(e), DepthSource::Embedded) => return Err(DepthNetError::Embedded(e)),
+                (Err(e), _) => {
+                    log::warn!("{e}; estimating depth with the network instead");
+                    embedded_error = Some(e);
+                }
+                (Ok(None), _) => {}
+            }
+        }
+        let net = self.loaded_net(load_ms)?;
+        let (map, mut report) = network_depth(&net, photo, &self.opts)?;
+        report.embedded_error = embedded_error;
+        Ok((map, report))
+    }
+
+    fn embedded(
+        &self,
+        photo_path: &Path,
+        photo: &RgbImage,
+    ) -> Result<Option<(DepthMap, StageReport)>, String> {
+        let Some(found) = embedded_depth::read(photo_path).map_err(|e| e.to_string())? else {
+            return Ok(None);
+        };
+        embedded_scene_depth(&found, photo, &self.opts)
+            .map(Some)
+            .map_err(|e| format!("{}: {e}", photo_path.display()))
+    }
 }
 
 fn percentile(values: &[f32], q: f64) -> f32 {

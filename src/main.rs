@@ -1,35 +1,47 @@
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
+use std::sync::Arc;
 
 use anyhow::Result;
 use clap::{Args, Parser, Subcommand, ValueEnum};
 
 use reshader::depth::DepthKind;
+use reshader::depth_net::cli::{DepthInput, EstimateArgs};
 use reshader::interleave::{Blend, Board};
 use reshader::output;
-use reshader::pipeline::{self, Product, RenderOptions, Scene, ViewRequest};
+use reshader::pipeline::{self, Product, RenderOptions, Scene, SceneDepth, ViewRequest};
 use reshader::relocate::RelocateArgs;
 
-const ABOUT: &str = "Turn one photo and its depth into the views, quilt and woven frame of a \
-lenticular light-field panel.";
+const ABOUT: &str = "Turn one photo into the views, quilt and woven frame of a lenticular \
+light-field panel.";
 
 const LONG_ABOUT: &str = "\
-Turn one photo and its depth into the views, quilt and woven frame of a lenticular
-light-field panel (Looking Glass and other slanted-lenticular displays).
+Turn one photo into the views, quilt and woven frame of a lenticular light-field panel
+(Looking Glass and other slanted-lenticular displays).
+
+Depth comes from the photo itself when it carries some (portrait-mode phone photos),
+else from the shipped depth network; --depth FILE uses a depth map of your own.
 
 The main job is `render`; every stage also runs alone for scripting and debugging.
 
 Examples:
   # everything for a Looking Glass Portrait: views/, quilt, panel.png, sbs.png, run.json
+  reshader render examples/pumpkin/pumpkin.jpg --board looking-glass-portrait --out out/
+
+  # the same with a depth map you have (here the example's relative disparity)
   reshader render examples/pumpkin/pumpkin.jpg --depth examples/pumpkin/pumpkin_disparity.png \\
       --depth-kind disparity --board looking-glass-portrait --out out/
 
   # only the woven frame and the quilt, with a unit's own calibration
-  reshader render photo.jpg --depth depth.npy --board looking-glass-go \\
-      --calibration visual.json --only panel,quilt --out out/
+  reshader render photo.jpg --board looking-glass-go --calibration visual.json \\
+      --only panel,quilt --out out/
 
   # one novel view, camera 0.1 units to the right (OpenCV axes: x right, y down, z forward)
-  reshader view photo.jpg --depth depth.npy --camera 0.1,0,0 --out view.png
+  reshader view photo.jpg --camera 0.1,0,0 --out view.png
+
+  # the depth stage alone, and gallery batches
+  reshader depth photo.jpg --out depth.npy
+  reshader convert ~/DCIM/*.jpg --board looking-glass-go
 
   # weave views you rendered elsewhere
   reshader weave out/views --board looking-glass-portrait --out panel.png
@@ -84,14 +96,21 @@ enum Command {
 }
 
 const RENDER_ABOUT: &str = "\
-Render all views of a board from a photo and its depth.
+Render all views of a board from a photo.
+
+Depth (--depth): by default the depth the photo carries (Google GDepth XMP or Android
+Dynamic Depth), else the depth network (the shipped Tiefenrausch model, or
+--depth-model), mapped to scene depth from --near to --near + --depth-budget. Or give a
+depth file: --depth depth.npy (add --depth-kind disparity for relative disparity).
+run.json says which (inputs.depth.source: file, embedded or network).
 
 Writes into --out:
   views/view_00.png … view_{N-1}.png   view 0 is the leftmost camera
   quilt_qs{cols}x{rows}a{aspect}.png   Looking-Glass quilt, view 0 bottom-left
   panel.png                            the frame woven for the board's panel
   sbs.png                              side-by-side pair (outermost views, or --sbs-pair)
-  run.json                             inputs with sha256, board, camera per view, timings
+  run.json                             inputs with sha256 (and where depth came from),
+                                       board, camera per view, timings
 
 Cameras sit on a horizontal line, view 0 leftmost. With --depthiness 1 the outermost
 cameras see the zero-parallax plane (--focus, default: the depth halfway between the
@@ -99,7 +118,10 @@ scene's near and far parts in disparity) at the edges of the board's view cone; 
 default the baseline is reduced so that the outermost views move nothing by more than
 3% of the view width. Points on the zero-parallax plane stay put between views.
 
-Example:
+Examples:
+  reshader render photo.jpg --board looking-glass-portrait --out out/
+  reshader render photo.jpg --board looking-glass-portrait --out out/ \\
+      --depth-precision int8 --near 1.5 --depth-budget 3
   reshader render photo.jpg --depth depth.png --depth-kind disparity \\
       --board looking-glass-portrait --out out/";
 
@@ -107,7 +129,8 @@ const RESHADE_ABOUT: &str = "\
 Reshade the photo as seen from --camera, keeping the input camera's frame.
 Until a reshading model is shipped this returns the photo unchanged (and says so).
 
-Example:
+Examples:
+  reshader reshade photo.jpg --camera 0.1,0,0 --out reshaded.png
   reshader reshade photo.jpg --depth depth.npy --camera 0.1,0,0 --out reshaded.png";
 
 const VIEW_ABOUT: &str = "\
@@ -116,20 +139,23 @@ pixels with the depth. The projection is sheared so the zero-parallax plane (--f
 stays put, as in `render`: for a photo of the board's view size, a render's view k
 equals `view` with run.json's camera k.
 
-Example:
+Examples:
+  reshader view photo.jpg --camera -0.2,0,0 --out view.exr
   reshader view photo.jpg --depth depth.npy --camera -0.2,0,0 --out view.exr";
 
 #[derive(Args)]
 struct SceneArgs {
     /// The photo (JPEG or PNG).
     photo: PathBuf,
-    /// Depth map: .npy (float32/float16/uint16), 16-bit .png (thousandths of a unit), .pfm or .exr.
-    #[arg(long)]
-    depth: PathBuf,
-    /// How to read the depth file: depth in scene units, or relative disparity (larger =
-    /// nearer), normalised so the scene spans depth 1 to 5 units.
-    #[arg(long, value_enum, default_value_t = DepthKind::Depth)]
-    depth_kind: DepthKind,
+    /// Where depth comes from: auto (the depth the photo carries, else the depth network),
+    /// network, embedded (an error if the photo has none), or a depth file: .npy
+    /// (float32/float16/uint16), 16-bit .png (thousandths of a unit), .pfm or .exr.
+    #[arg(long, default_value = "auto", value_name = "FILE|auto|...")]
+    depth: DepthInput,
+    /// How to read a depth file: depth in scene units, or relative disparity (larger =
+    /// nearer), normalised so the scene spans depth 1 to 5 units [default: depth].
+    #[arg(long, value_enum)]
+    depth_kind: Option<DepthKind>,
     /// Horizontal field of view in degrees [default: from EXIF 35 mm focal length, else 45].
     #[arg(long, allow_negative_numbers = true)]
     fov: Option<f64>,
@@ -138,6 +164,28 @@ struct SceneArgs {
     focus: Option<f64>,
     #[command(flatten)]
     reshade: reshader::reshade_net::cli::ReshadeArgs,
+    #[command(flatten)]
+    estimate: EstimateArgs,
+}
+
+impl SceneArgs {
+    /// The depth file, or an estimator (the network is loaded only when used).
+    fn scene_depth(&self) -> Result<SceneDepth> {
+        match &self.depth {
+            DepthInput::File(path) => Ok(SceneDepth::File {
+                path: path.clone(),
+                kind: self.depth_kind.unwrap_or(DepthKind::Depth),
+            }),
+            DepthInput::Estimate(_) if self.depth_kind.is_some() => Err(anyhow::anyhow!(
+                "--depth-kind says how to read a depth file; give the file with --depth FILE"
+            )),
+            DepthInput::Estimate(source) => Ok(SceneDepth::Estimate(Arc::new(
+                self.estimate
+                    .estimator(*source)
+                    .map_err(anyhow::Error::msg)?,
+            ))),
+        }
+    }
 }
 
 #[derive(Args)]
@@ -304,6 +352,7 @@ fn run(command: Command) -> Result<()> {
 }
 
 fn render(args: RenderArgs) -> Result<()> {
+    let depth = args.scene.scene_depth()?;
     let reshader = args.scene.reshade.build()?;
     let board = pipeline::load_board(&args.board, args.calibration.as_deref())?;
     let board_file = Path::new(&args.board)
@@ -311,8 +360,7 @@ fn render(args: RenderArgs) -> Result<()> {
         .then(|| PathBuf::from(&args.board));
     let opts = RenderOptions {
         photo: args.scene.photo,
-        depth: args.scene.depth,
-        depth_kind: args.scene.depth_kind,
+        depth,
         fov: args.scene.fov,
         board,
         board_file,
@@ -336,12 +384,9 @@ fn render(args: RenderArgs) -> Result<()> {
 }
 
 fn load_scene(args: &SceneArgs) -> Result<Scene> {
-    Ok(Scene::load(
-        &args.photo,
-        &args.depth,
-        args.depth_kind,
-        args.fov,
-    )?)
+    let depth = args.scene_depth()?;
+    let mut timings = reshader::record::Timings::default();
+    Ok(Scene::load(&args.photo, &depth, args.fov, &mut timings)?)
 }
 
 fn reshade(args: SingleViewArgs) -> Result<()> {

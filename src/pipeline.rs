@@ -3,16 +3,18 @@
 //! are staged and moved into place together.
 
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 use image::RgbImage;
 use interleave::{make_quilt, side_by_side, Blend, Board, BoardError, WeaveError, Weaver};
 
 use crate::depth::{DepthError, DepthKind, DepthMap, DepthReport};
+use crate::depth_net::{DepthEstimator, DepthNetError, StageReport};
 use crate::output::{self, OutputError, Staging};
 use crate::photo::{Photo, PhotoError, SrgbImage};
 use crate::record::{
-    BoardRecord, DepthRecord, FileRecord, Geometry, Inputs, PhotoRecord, RunRecord, Setting,
-    Timings, Versions, ViewRecord,
+    BoardRecord, DepthRecord, FileDepthRecord, FileRecord, Geometry, Inputs, PhotoRecord,
+    RunRecord, Setting, Timings, Versions, ViewRecord,
 };
 use crate::relocate::{self, RelocateError, Relocator};
 use crate::reshade::{ReshadeError, Reshader, TrainingFrame};
@@ -24,6 +26,8 @@ pub enum PipelineError {
     Photo(#[from] PhotoError),
     #[error(transparent)]
     Depth(#[from] DepthError),
+    #[error(transparent)]
+    DepthNet(#[from] DepthNetError),
     #[error(transparent)]
     View(#[from] ViewError),
     #[error(transparent)]
@@ -60,12 +64,27 @@ pub enum Product {
     Sbs,
 }
 
+/// Where a scene's depth comes from.
+#[derive(Clone)]
+pub enum SceneDepth {
+    /// A depth file, read as `kind`.
+    File { path: PathBuf, kind: DepthKind },
+    /// Embedded in the photo or from the depth network; shared so that a batch loads the
+    /// network once.
+    Estimate(Arc<DepthEstimator>),
+}
+
+/// What produced a scene's depth, for run.json.
+pub enum DepthOrigin {
+    File { path: PathBuf, report: DepthReport },
+    Estimated(Box<StageReport>),
+}
+
 /// A photo with its depth at the photo's resolution.
 pub struct Scene {
     pub photo: Photo,
     pub depth: DepthMap,
-    pub depth_path: PathBuf,
-    pub depth_report: DepthReport,
+    pub depth_origin: DepthOrigin,
 }
 
 /// Photo and depth resampled for views of a given size, with their cameras.
@@ -79,20 +98,36 @@ pub struct Fitted {
 }
 
 impl Scene {
+    /// Loads the photo (timed as `load`) and its depth: a file (also `load`) or the
+    /// estimator (`depth`, and `depth_model` when this call loads the network).
     pub fn load(
         photo: &Path,
-        depth: &Path,
-        kind: DepthKind,
+        depth: &SceneDepth,
         fov: Option<f64>,
+        t: &mut Timings,
     ) -> Result<Self, PipelineError> {
-        let photo = Photo::load(photo, fov)?;
-        let (depth_map, depth_report) =
-            DepthMap::load(depth, kind, photo.image.width(), photo.image.height())?;
+        let photo_path = photo;
+        let photo = t.time("load", || Photo::load(photo_path, fov))?;
+        let (w, h) = (photo.image.width(), photo.image.height());
+        let (depth, depth_origin) = match depth {
+            SceneDepth::File { path, kind } => {
+                let (map, report) = t.time("load", || DepthMap::load(path, *kind, w, h))?;
+                let origin = DepthOrigin::File {
+                    path: path.clone(),
+                    report,
+                };
+                (map, origin)
+            }
+            SceneDepth::Estimate(estimator) => {
+                let rgb = photo.image.to_rgb8();
+                let (map, report) = estimator.depth(photo_path, &rgb, t)?;
+                (map, DepthOrigin::Estimated(Box::new(report)))
+            }
+        };
         Ok(Self {
             photo,
-            depth: depth_map,
-            depth_path: depth.into(),
-            depth_report,
+            depth,
+            depth_origin,
         })
     }
 
@@ -140,9 +175,13 @@ impl Scene {
                 hfov_deg: self.photo.hfov_deg,
                 fov_source: self.photo.fov_source,
             },
-            depth: DepthRecord {
-                file: record(&self.depth_path)?,
-                report: self.depth_report.clone(),
+            depth: match &self.depth_origin {
+                DepthOrigin::File { path, report } => DepthRecord::File(FileDepthRecord {
+                    source: "file",
+                    file: record(path)?,
+                    report: report.clone(),
+                }),
+                DepthOrigin::Estimated(report) => DepthRecord::Estimated((**report).clone()),
             },
             board_file: None,
             calibration: None,
@@ -161,8 +200,7 @@ pub fn load_board(name_or_path: &str, calibration: Option<&Path>) -> Result<Boar
 
 pub struct RenderOptions {
     pub photo: PathBuf,
-    pub depth: PathBuf,
-    pub depth_kind: DepthKind,
+    pub depth: SceneDepth,
     pub fov: Option<f64>,
     pub board: Board,
     pub board_file: Option<PathBuf>,
@@ -206,9 +244,7 @@ pub fn render(
     let mut t = Timings::default();
     let sbs_pair = opts.sbs_pair()?;
     let board = &opts.board;
-    let scene = t.time("load", || {
-        Scene::load(&opts.photo, &opts.depth, opts.depth_kind, opts.fov)
-    })?;
+    let scene = Scene::load(&opts.photo, &opts.depth, opts.fov, &mut t)?;
     let (focus, focus_source) = scene.focus(opts.focus);
     let (vw, vh) = board.view_size();
     let fitted = t.time("fit", || scene.fitted(vw, vh));

@@ -7,6 +7,7 @@ use std::time::Instant;
 use sha2::{Digest, Sha256};
 
 use crate::depth::DepthReport;
+use crate::depth_net::StageReport;
 use crate::photo::FovSource;
 use crate::views::ViewRig;
 
@@ -33,7 +34,7 @@ pub struct Inputs {
     pub calibration: Option<FileRecord>,
 }
 
-#[derive(Debug, serde::Serialize)]
+#[derive(Clone, Debug, PartialEq, Eq, serde::Serialize)]
 pub struct FileRecord {
     pub path: String,
     pub sha256: String,
@@ -48,8 +49,20 @@ pub struct PhotoRecord {
     pub fov_source: FovSource,
 }
 
+/// Where the depth came from. Its `source` field says which form this is: `"file"`
+/// (path, sha256 and how the file was read), `"embedded"` (the container and range format
+/// the photo carried) or `"network"` (model, its ONNX file with sha256, precision, engine).
 #[derive(Debug, serde::Serialize)]
-pub struct DepthRecord {
+#[serde(untagged)]
+pub enum DepthRecord {
+    File(FileDepthRecord),
+    Estimated(StageReport),
+}
+
+#[derive(Debug, serde::Serialize)]
+pub struct FileDepthRecord {
+    /// Always "file".
+    pub source: &'static str,
     #[serde(flatten)]
     pub file: FileRecord,
     #[serde(flatten)]
@@ -153,7 +166,7 @@ impl Timings {
         result
     }
 
-    fn add(&mut self, stage: &str, ms: f64) {
+    pub fn add(&mut self, stage: &str, ms: f64) {
         match self.stages.iter_mut().find(|(s, _)| s == stage) {
             Some((_, total)) => *total += ms,
             None => self.stages.push((stage.into(), ms)),

@@ -37,7 +37,8 @@ pub trait PreparedPhoto {
     fn reshade(&self, centre: [f64; 3]) -> Result<SrgbImage, ReshadeError>;
 }
 
-/// Stands in until a reshading model is loaded: returns the photo unchanged.
+/// Stands in until a reshading model is loaded: returns the photo unchanged. Whoever
+/// chooses it says so once (`ReshadeArgs::build` warns), not once per photo.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct IdentityReshader;
 
@@ -53,7 +54,6 @@ impl Reshader for IdentityReshader {
         image: &'a SrgbImage,
         _depth: &'a DepthMap,
     ) -> Result<Box<dyn PreparedPhoto + 'a>, ReshadeError> {
-        log::warn!("no reshading model is loaded: views keep the photo's shading");
         Ok(Box::new(Unchanged(image)))
     }
 }

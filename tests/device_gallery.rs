@@ -1,5 +1,8 @@
 //! Gallery hooks end to end through the binary: `convert` on a batch with corrupt photos,
-//! and `watch` with photos appearing while it runs, stopped by SIGTERM and restarted.
+//! on photos without depth sidecars, and `watch` with photos appearing while it runs,
+//! stopped by SIGTERM and restarted.
+
+mod depth_support;
 
 use std::io::{BufRead, BufReader, Write};
 use std::path::{Path, PathBuf};
@@ -65,6 +68,11 @@ fn write_depth(photo: &Path) {
     let stem = photo.file_stem().unwrap().to_string_lossy();
     let path = photo.with_file_name(format!("{stem}_depth.npy"));
     std::fs::write(path, reshader::npy::encode_f32(&[h, w], &data)).unwrap();
+}
+
+/// The small fixture depth network (fast to load and run).
+fn fixture_model() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/depth/fixture-logdisp.json")
 }
 
 fn json_lines(stdout: &[u8]) -> Vec<Value> {
@@ -202,6 +210,85 @@ fn convert_succeeds_with_exit_0_and_human_output() {
     assert!(dir.path().join("one.reshader/run.json").is_file());
 }
 
+#[test]
+fn convert_without_sidecars_uses_embedded_depth_or_the_network_loaded_once() {
+    let dir = tempfile::tempdir().unwrap();
+    let board = board(dir.path());
+    let photos = dir.path().join("photos");
+    std::fs::create_dir(&photos).unwrap();
+    let plain = [photos.join("plain1.jpg"), photos.join("plain2.jpg")];
+    for (i, p) in plain.iter().enumerate() {
+        std::fs::write(p, photo_bytes(i as u32)).unwrap();
+    }
+    let portrait = photos.join("portrait.jpg");
+    let (png, _) = depth_support::depth_png(20, 15);
+    let gdepth = depth_support::gdepth_jpeg(&depth_support::base64(&png), "RangeInverse", 900);
+    std::fs::write(&portrait, gdepth).unwrap();
+    let side = photos.join("side.jpg");
+    std::fs::write(&side, photo_bytes(9)).unwrap();
+    write_depth(&side);
+
+    let output = reshader()
+        .args(["-v", "convert"])
+        .args([&plain[0], &plain[1], &portrait, &side])
+        .arg("--board")
+        .arg(&board)
+        .arg("--depth-model")
+        .arg(fixture_model())
+        .arg("--json")
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(output.status.success(), "{stderr}");
+    let lines = json_lines(&output.stdout);
+    assert_eq!(status_of(&lines, "converted"), 4, "{lines:?}");
+    assert_eq!(
+        stderr.matches("fixture-logdisp.onnx loaded in").count(),
+        1,
+        "the depth network is loaded once per process: {stderr}"
+    );
+    let source = |photo: &Path| {
+        let stem = photo.file_stem().unwrap().to_string_lossy();
+        let run = std::fs::read(photo.with_file_name(format!("{stem}.reshader/run.json")));
+        let run: Value = serde_json::from_slice(&run.unwrap()).unwrap();
+        run["inputs"]["depth"]["source"]
+            .as_str()
+            .unwrap()
+            .to_string()
+    };
+    assert_eq!(source(&plain[0]), "network");
+    assert_eq!(source(&plain[1]), "network");
+    assert_eq!(source(&portrait), "embedded");
+    assert_eq!(source(&side), "file");
+    for line in &lines[..2] {
+        assert!(line["timings_ms"]["depth"].as_f64().is_some(), "{line}");
+    }
+}
+
+#[test]
+fn convert_with_a_missing_depth_model_fails_before_any_photo() {
+    let dir = tempfile::tempdir().unwrap();
+    let board = board(dir.path());
+    let photo = dir.path().join("one.jpg");
+    std::fs::write(&photo, photo_bytes(1)).unwrap();
+    let output = reshader()
+        .arg("convert")
+        .arg(&photo)
+        .arg("--board")
+        .arg(&board)
+        .args(["--depth-model", "no-such-model.onnx", "--json"])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert_eq!(output.status.code(), Some(1), "{stderr}");
+    assert!(
+        stderr.contains("error: ") && stderr.contains("no-such-model.onnx"),
+        "{stderr}"
+    );
+    assert!(output.stdout.is_empty(), "no photo was attempted");
+    assert!(!dir.path().join("one.reshader").exists());
+}
+
 /// Lines of a child's stdout, read on a thread so waits can be bounded.
 fn line_reader(child: &mut Child) -> Receiver<String> {
     let stdout = child.stdout.take().unwrap();
@@ -240,6 +327,8 @@ fn spawn_watch(dir: &Path, board: &Path, out: &Path, extra: &[&str]) -> Child {
         .arg("--out")
         .arg(out)
         .args(["--json", "--settle-ms", "300", "--rescan-ms", "200"])
+        .arg("--depth-model")
+        .arg(fixture_model())
         .args(extra)
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
@@ -283,9 +372,9 @@ fn watch_converts_photos_as_they_appear_and_survives_a_restart() {
     let lines = line_reader(&mut child);
     assert_eq!(next_report(&lines), ("a.jpg".into(), "converted".into()));
 
-    // Saved the way camera apps do: a hidden temporary renamed into place.
+    // Saved the way camera apps do: a hidden temporary renamed into place; no depth
+    // sidecar, so the depth network estimates it.
     let b = inbox.join("b.jpg");
-    write_depth(&b);
     let tmp = inbox.join(".b.jpg.partial");
     std::fs::write(&tmp, photo_bytes(2)).unwrap();
     std::fs::rename(&tmp, &b).unwrap();

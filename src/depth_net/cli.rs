@@ -9,7 +9,7 @@ use crate::manifest::Precision;
 use crate::output::{self, OutputError};
 use crate::photo::PhotoError;
 
-use super::{DepthNetError, DepthSource, NetChoice, SceneScale, StageOptions};
+use super::{DepthEstimator, DepthNetError, DepthSource, NetChoice, SceneScale, StageOptions};
 
 pub const DEPTH_ABOUT: &str = "\
 Estimate scene depth for a photo and write it at the photo's resolution.
@@ -71,10 +71,13 @@ pub fn run_depth(args: &DepthCommandArgs) -> Result<String, DepthCommandError> {
         output::FileFormat::Png,
     ];
     output::FileFormat::require(&args.out, &all)?;
-    let opts = args.stage.options().map_err(DepthCommandError::Options)?;
+    let estimator = args
+        .stage
+        .estimator(args.depth, args.precision)
+        .map_err(DepthCommandError::Options)?;
     let photo = crate::photo::load_rgb8(&args.photo)?;
-    let net = args.stage.net(args.precision);
-    let (map, report) = super::photo_depth(&args.photo, &photo, args.depth, &net, &opts)?;
+    let mut timings = crate::record::Timings::default();
+    let (map, report) = estimator.depth(&args.photo, &photo, &mut timings)?;
     let bytes = map.encode(&args.out)?;
     output::write_atomic(&args.out, &bytes)?;
     log::info!(
@@ -135,6 +138,19 @@ impl DepthStageArgs {
         }
     }
 
+    /// The estimator these options describe; the network is loaded on first use.
+    pub fn estimator(
+        &self,
+        source: DepthSource,
+        precision: Precision,
+    ) -> Result<DepthEstimator, String> {
+        Ok(DepthEstimator::new(
+            source,
+            self.net(precision),
+            self.options()?,
+        ))
+    }
+
     pub fn options(&self) -> Result<StageOptions, String> {
         let scale = SceneScale {
             near: self.near,
@@ -145,6 +161,24 @@ impl DepthStageArgs {
             scale,
             refine: (!self.no_depth_refine).then(RefineOptions::default),
         })
+    }
+}
+
+/// The depth-estimation options of the commands that render (`render`, `view`,
+/// `reshade`, `convert`, `watch`), used when no depth file is given.
+#[derive(Clone, Debug, clap::Args)]
+#[command(next_help_heading = "Depth estimation (when no depth file is given)")]
+pub struct EstimateArgs {
+    /// Precision of the shipped depth model: fp32 (faster in tract) or int8 (smaller).
+    #[arg(long, default_value = "fp32", value_parser = parse_depth_precision)]
+    pub depth_precision: Precision,
+    #[command(flatten)]
+    pub stage: DepthStageArgs,
+}
+
+impl EstimateArgs {
+    pub fn estimator(&self, source: DepthSource) -> Result<DepthEstimator, String> {
+        self.stage.estimator(source, self.depth_precision)
     }
 }
 

@@ -13,12 +13,15 @@ use interleave::{Blend, Board};
 use super::watch::{watch, WatchOptions};
 use super::{convert_batch, ConvertReport, Converter, FnConverter, OutLayout, PhotoReport};
 use crate::depth::DepthKind;
-use crate::pipeline::{self, Product, RenderOptions};
+use crate::depth_net::cli::EstimateArgs;
+use crate::depth_net::{DepthEstimator, DepthNetError, DepthSource};
+use crate::pipeline::{self, Product, RenderOptions, SceneDepth};
 use crate::relocate::RelocateArgs;
 use crate::reshade::IdentityReshader;
 
 /// Depth files looked for beside a photo, in order: `NAME_depth.EXT` holds depth in
-/// scene units, `NAME_disparity.EXT` relative disparity.
+/// scene units, `NAME_disparity.EXT` relative disparity. Without one, the photo's
+/// embedded depth or the depth network is used.
 pub(crate) const DEPTH_SIDECARS: &[(&str, DepthKind)] = &[
     ("_depth", DepthKind::Depth),
     ("_disparity", DepthKind::Disparity),
@@ -31,6 +34,10 @@ pub enum GalleryError {
     Board(#[from] interleave::BoardError),
     #[error(transparent)]
     Watch(#[from] super::watch::WatchError),
+    #[error(transparent)]
+    DepthNet(#[from] DepthNetError),
+    #[error("{0}")]
+    Options(String),
     #[error("{failed} of {total} photos failed")]
     SomeFailed { failed: usize, total: usize },
     #[error("cannot install the SIGINT/SIGTERM handler: {0}")]
@@ -61,12 +68,15 @@ pub struct GalleryArgs {
     pub json: bool,
     #[command(flatten)]
     pub relocate: RelocateArgs,
+    #[command(flatten)]
+    pub estimate: EstimateArgs,
 }
 
 #[derive(clap::Args, Debug)]
 pub struct ConvertArgs {
-    /// Photos (JPEG or PNG). Each needs its depth beside it: NAME_depth.{npy,png,pfm,exr}
-    /// (depth in scene units) or NAME_disparity.{npy,png,pfm,exr} (relative disparity).
+    /// Photos (JPEG or PNG). Depth: NAME_depth.{npy,png,pfm,exr} (scene units) or
+    /// NAME_disparity.{npy,png,pfm,exr} (relative disparity) beside the photo if present,
+    /// else the depth the photo carries, else the depth network.
     #[arg(required = true)]
     pub photos: Vec<PathBuf>,
     #[command(flatten)]
@@ -102,6 +112,11 @@ Each photo's outputs go to NAME.reshader/ beside it, or OUT/NAME/ with --out, wr
 atomically. A photo converted before with the same bytes and settings is skipped (its
 .reshader-done.json records both) unless --force. One bad photo never stops the batch;
 the exit code is 0 only if every photo succeeded.
+
+Depth per photo: a sidecar NAME_depth.{npy,png,pfm,exr} (scene units) or
+NAME_disparity.{…} (relative disparity) beside it when there is one, else the depth the
+photo carries (GDepth / Dynamic Depth), else the depth network, which is loaded once
+before the first photo. Each run.json says which (inputs.depth.source).
 
 Examples:
   reshader convert ~/DCIM/*.jpg --board looking-glass-go
@@ -181,11 +196,17 @@ fn print_report(report: &PhotoReport, json: bool) {
     let _ = writeln!(out, "{line}").and_then(|()| out.flush());
 }
 
-/// The render pipeline as a converter: the board (and, once they exist, the models) are
-/// loaded here, once, and shared by every photo.
+/// The render pipeline as a converter: the board and the depth network are loaded here,
+/// once, and shared by every photo (a bad --depth-model fails before any photo).
 pub fn pipeline_converter(args: &GalleryArgs) -> Result<impl Converter, GalleryError> {
     let board = pipeline::load_board(&args.board, args.calibration.as_deref())?;
-    let fingerprint = fingerprint(args, &board);
+    let estimator = args
+        .estimate
+        .estimator(DepthSource::Auto)
+        .map_err(GalleryError::Options)?;
+    estimator.net()?;
+    let fingerprint = fingerprint(args, &board, &estimator);
+    let estimator = Arc::new(estimator);
     let board_file = Path::new(&args.board)
         .is_file()
         .then(|| PathBuf::from(&args.board));
@@ -197,11 +218,13 @@ pub fn pipeline_converter(args: &GalleryArgs) -> Result<impl Converter, GalleryE
     Ok(FnConverter::new(
         fingerprint,
         move |photo: &Path, out_dir: &Path| -> Result<ConvertReport, String> {
-            let (depth, depth_kind) = find_depth(photo)?;
+            let depth = match find_depth(photo) {
+                Some((path, kind)) => SceneDepth::File { path, kind },
+                None => SceneDepth::Estimate(Arc::clone(&estimator)),
+            };
             let opts = RenderOptions {
                 photo: photo.into(),
                 depth,
-                depth_kind,
                 fov: None,
                 board: board.clone(),
                 board_file: board_file.clone(),
@@ -229,26 +252,27 @@ pub fn pipeline_converter(args: &GalleryArgs) -> Result<impl Converter, GalleryE
 }
 
 /// Everything that changes a conversion's outputs, so that changing it reconverts.
-fn fingerprint(args: &GalleryArgs, board: &Board) -> String {
+fn fingerprint(args: &GalleryArgs, board: &Board, estimator: &DepthEstimator) -> String {
     let calibration = args
         .calibration
         .as_deref()
         .map(|p| crate::record::sha256_file(p).unwrap_or_else(|e| format!("unreadable: {e}")));
     format!(
         "reshader {}; board {} from {}; calibration {:?}; only {:?}; depthiness {:?}; \
-         reshade identity; relocate {}",
+         {}; reshade identity; relocate {}",
         env!("CARGO_PKG_VERSION"),
         board.name(),
         board.origin(),
         calibration,
         args.only,
         args.depthiness,
+        estimator.describe(),
         args.relocate.build().description()
     )
 }
 
 /// The depth map beside `photo`, and how to read it.
-pub fn find_depth(photo: &Path) -> Result<(PathBuf, DepthKind), String> {
+pub fn find_depth(photo: &Path) -> Option<(PathBuf, DepthKind)> {
     let stem = photo
         .file_stem()
         .map(|s| s.to_string_lossy().into_owned())
@@ -257,16 +281,11 @@ pub fn find_depth(photo: &Path) -> Result<(PathBuf, DepthKind), String> {
         for ext in DEPTH_EXTENSIONS {
             let candidate = photo.with_file_name(format!("{stem}{suffix}.{ext}"));
             if candidate.is_file() {
-                return Ok((candidate, *kind));
+                return Some((candidate, *kind));
             }
         }
     }
-    Err(format!(
-        "no depth map for {}: put {stem}_depth.npy (or .png/.pfm/.exr; depth in scene \
-         units) or {stem}_disparity.png (relative disparity) beside it — there is no depth \
-         model to estimate it yet",
-        photo.display()
-    ))
+    None
 }
 
 #[cfg(test)]
@@ -277,8 +296,7 @@ mod tests {
     fn depth_sidecars_are_found_by_name_and_kind() {
         let dir = tempfile::tempdir().unwrap();
         let photo = dir.path().join("img.jpg");
-        let err = find_depth(&photo).unwrap_err();
-        assert!(err.contains("img_depth.npy"), "{err}");
+        assert_eq!(find_depth(&photo), None);
         std::fs::write(dir.path().join("img_disparity.png"), b"").unwrap();
         assert_eq!(
             find_depth(&photo).unwrap(),

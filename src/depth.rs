@@ -10,8 +10,9 @@
 use std::io::Cursor;
 use std::path::{Path, PathBuf};
 
-use image::{DynamicImage, ImageBuffer, ImageFormat, Luma};
+use image::{DynamicImage, ImageBuffer, ImageDecoder, ImageFormat, Luma};
 
+use crate::limits::{self, ReadError, TooLarge};
 use crate::npy::{self, NpyError};
 use crate::output::{FileFormat, OutputError};
 use crate::pfm::{self, PfmError};
@@ -62,6 +63,8 @@ pub enum DepthError {
         width: usize,
         height: usize,
     },
+    #[error("depth map {path}: {source}")]
+    TooLarge { path: PathBuf, source: TooLarge },
     #[error("depth map {path} has {count} NaN or infinite values (first at x={x}, y={y})")]
     NotFinite {
         path: PathBuf,
@@ -340,13 +343,25 @@ impl DepthMap {
 
 /// Reads the numbers of a depth file without interpreting them.
 pub fn read_raw(path: &Path) -> Result<RawMap, DepthError> {
-    let bytes = std::fs::read(path).map_err(|source| DepthError::Io {
-        path: path.into(),
-        source,
+    let bytes = limits::read_input(path).map_err(|e| match e {
+        ReadError::Io(source) => DepthError::Io {
+            path: path.into(),
+            source,
+        },
+        ReadError::TooLarge(source) => DepthError::TooLarge {
+            path: path.into(),
+            source,
+        },
     })?;
+    parse_raw(path, &bytes)
+}
+
+/// [`read_raw`] on a file's bytes: `path` names the file in errors, and its extension
+/// gives the format.
+pub fn parse_raw(path: &Path, bytes: &[u8]) -> Result<RawMap, DepthError> {
     let raw = match FileFormat::from_path(path) {
         Some(FileFormat::Npy) => {
-            let arr = npy::parse(&bytes).map_err(|source| DepthError::Npy {
+            let arr = npy::parse(bytes).map_err(|source| DepthError::Npy {
                 path: path.into(),
                 source,
             })?;
@@ -357,7 +372,7 @@ pub fn read_raw(path: &Path) -> Result<RawMap, DepthError> {
             }
         }
         Some(FileFormat::Pfm) => {
-            let map = pfm::parse(&bytes).map_err(|source| DepthError::Pfm {
+            let map = pfm::parse(bytes).map_err(|source| DepthError::Pfm {
                 path: path.into(),
                 source,
             })?;
@@ -367,18 +382,34 @@ pub fn read_raw(path: &Path) -> Result<RawMap, DepthError> {
                 values: map.data,
             }
         }
-        Some(FileFormat::Png) => read_png16(path, &bytes)?,
-        Some(FileFormat::Exr) => read_exr(path, &bytes)?,
+        Some(FileFormat::Png) => read_png16(path, bytes)?,
+        Some(FileFormat::Exr) => read_exr(path, bytes)?,
         None => return Err(DepthError::Extension { path: path.into() }),
     };
-    if raw.width == 0 || raw.height == 0 || raw.width > MAX_SIDE || raw.height > MAX_SIDE {
+    check_size(path, raw.width, raw.height, 0)?;
+    Ok(raw)
+}
+
+/// Refuses a map by its size, before its values are allocated where the format allows:
+/// `extra` is what the decoder needs besides the float values.
+fn check_size(path: &Path, width: usize, height: usize, extra: u64) -> Result<(), DepthError> {
+    if width == 0 || height == 0 || width > MAX_SIDE || height > MAX_SIDE {
         return Err(DepthError::Size {
             path: path.into(),
-            width: raw.width,
-            height: raw.height,
+            width,
+            height,
         });
     }
-    Ok(raw)
+    let floats = (width * height) as u64 * 4;
+    limits::check_alloc(
+        format!("a {width}x{height} map"),
+        floats.saturating_add(extra),
+        1,
+    )
+    .map_err(|source| DepthError::TooLarge {
+        path: path.into(),
+        source,
+    })
 }
 
 fn decode_image(
@@ -386,15 +417,17 @@ fn decode_image(
     bytes: &[u8],
     format: ImageFormat,
 ) -> Result<DynamicImage, DepthError> {
-    let mut reader = image::ImageReader::with_format(Cursor::new(bytes), format);
-    let mut limits = image::Limits::default();
-    limits.max_image_width = Some(MAX_SIDE as u32);
-    limits.max_image_height = Some(MAX_SIDE as u32);
-    reader.limits(limits);
-    reader.decode().map_err(|source| DepthError::Decode {
+    let decode_err = |source| DepthError::Decode {
         path: path.into(),
         source,
-    })
+    };
+    let mut reader = image::ImageReader::with_format(Cursor::new(bytes), format);
+    // Sides are checked below with a message that names them.
+    reader.limits(limits::image_limits(u32::MAX));
+    let decoder = reader.into_decoder().map_err(decode_err)?;
+    let (width, height) = decoder.dimensions();
+    check_size(path, width as usize, height as usize, decoder.total_bytes())?;
+    DynamicImage::from_decoder(decoder).map_err(decode_err)
 }
 
 fn read_png16(path: &Path, bytes: &[u8]) -> Result<RawMap, DepthError> {
@@ -426,6 +459,16 @@ fn read_exr(path: &Path, bytes: &[u8]) -> Result<RawMap, DepthError> {
         path: path.into(),
         source,
     };
+    // The reader allocates every channel of a layer from its header's size: check them
+    // all before reading.
+    let meta =
+        exr::meta::MetaData::read_from_buffered(Cursor::new(bytes), false).map_err(exr_err)?;
+    for header in meta.headers.iter().filter(|h| !h.deep) {
+        let (w, h) = (header.layer_size.x(), header.layer_size.y());
+        let samples = (w as u64).saturating_mul(h as u64);
+        let stored = samples.saturating_mul(header.channels.bytes_per_pixel as u64);
+        check_size(path, w, h, stored)?;
+    }
     let image = read()
         .no_deep_data()
         .largest_resolution_level()

@@ -19,7 +19,7 @@ mod xml;
 use std::io::Cursor;
 use std::path::{Path, PathBuf};
 
-use image::{DynamicImage, ImageFormat};
+use image::{DynamicImage, ImageDecoder, ImageFormat};
 
 use crate::depth::RawMap;
 use xml::Element;
@@ -43,6 +43,11 @@ pub enum EmbeddedError {
     },
     #[error("{path}: embedded depth is unreadable: {problem}")]
     Malformed { path: PathBuf, problem: String },
+    #[error("{path}: {source}")]
+    TooLarge {
+        path: PathBuf,
+        source: crate::limits::TooLarge,
+    },
 }
 
 /// Which of the two forms the depth came in.
@@ -77,9 +82,15 @@ pub struct EmbeddedDepth {
 /// The embedded depth of the JPEG at `path`: `Ok(None)` when it carries none (or is not a
 /// JPEG), an error when it claims depth that cannot be read.
 pub fn read(path: &Path) -> Result<Option<EmbeddedDepth>, EmbeddedError> {
-    let bytes = std::fs::read(path).map_err(|source| EmbeddedError::Io {
-        path: path.into(),
-        source,
+    let bytes = crate::limits::read_input(path).map_err(|e| match e {
+        crate::limits::ReadError::Io(source) => EmbeddedError::Io {
+            path: path.into(),
+            source,
+        },
+        crate::limits::ReadError::TooLarge(source) => EmbeddedError::TooLarge {
+            path: path.into(),
+            source,
+        },
     })?;
     parse(&bytes).map_err(|problem| EmbeddedError::Malformed {
         path: path.into(),
@@ -196,14 +207,17 @@ impl Range {
                 ))
             }
         };
+        let decode_err = |e| format!("{what}: cannot decode the depth image: {e}");
         let mut reader = image::ImageReader::with_format(Cursor::new(bytes), format);
-        let mut limits = image::Limits::default();
-        limits.max_image_width = Some(MAX_DEPTH_SIDE);
-        limits.max_image_height = Some(MAX_DEPTH_SIDE);
-        reader.limits(limits);
-        let img = reader
-            .decode()
-            .map_err(|e| format!("{what}: cannot decode the depth image: {e}"))?;
+        reader.limits(crate::limits::image_limits(MAX_DEPTH_SIDE));
+        let decoder = reader.into_decoder().map_err(decode_err)?;
+        let (w, h) = decoder.dimensions();
+        // The decoded image, a 16-bit grey copy and the float values.
+        let pixels = u64::from(w) * u64::from(h);
+        let needed = decoder.total_bytes().saturating_add(pixels * (2 + 4));
+        crate::limits::check_alloc(format!("{what}: a {w}x{h} depth image"), needed, 1)
+            .map_err(|e| e.to_string())?;
+        let img = DynamicImage::from_decoder(decoder).map_err(decode_err)?;
         let (width, height) = (img.width() as usize, img.height() as usize);
         let values: Vec<f32> = match img {
             DynamicImage::ImageLuma16(g) => {

@@ -18,6 +18,7 @@ pub mod engine;
 pub mod eval_relocation;
 pub mod gallery;
 pub mod ldi;
+pub mod limits;
 pub mod manifest;
 pub mod npy;
 pub mod output;

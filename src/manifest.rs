@@ -176,8 +176,13 @@ impl Manifest {
             path: path.to_owned(),
             source,
         })?;
+        Self::from_json_str(&text, path)
+    }
+
+    /// Parses manifest text; `path` names it in errors.
+    pub fn from_json_str(text: &str, path: &Path) -> Result<Self, ManifestError> {
         let manifest: Manifest =
-            serde_json::from_str(&text).map_err(|source| ManifestError::Json {
+            serde_json::from_str(text).map_err(|source| ManifestError::Json {
                 path: path.to_owned(),
                 source,
             })?;

@@ -29,6 +29,8 @@ pub enum NpyError {
     Shape(Vec<usize>),
     #[error("shape {0:?} is too large")]
     TooLarge(Vec<usize>),
+    #[error(transparent)]
+    Budget(#[from] crate::limits::TooLarge),
     #[error("data holds {actual} bytes, the header promises {expected}")]
     DataLength { expected: usize, actual: usize },
 }
@@ -100,6 +102,7 @@ pub fn parse(bytes: &[u8]) -> Result<Array2, NpyError> {
             actual: data.len(),
         });
     }
+    crate::limits::check_alloc(format!("a {rows}x{cols} map"), (rows * cols) as u64, 4)?;
     let data = data
         .chunks_exact(dtype.size())
         .map(|c| dtype.decode(c))

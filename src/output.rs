@@ -1,6 +1,12 @@
 //! Writing results: every file goes to a temporary name in its destination directory and
 //! is renamed into place, and a multi-file run is staged whole before anything appears,
 //! so a failure never leaves half-written or partial outputs behind.
+//!
+//! A run killed while its staged files are being moved in (SIGKILL, power loss) is
+//! finished by the next run on the same directory: the staging directory holds a
+//! commit list, written once everything is staged, and [`Staging::new`] first rolls any
+//! abandoned commit forward (or, if it never got that far, deletes the staging
+//! directory), so the destination always ends up as the old run or the new one.
 
 use std::fs;
 use std::io::{Cursor, Write};
@@ -155,6 +161,10 @@ fn parent_dir(path: &Path) -> PathBuf {
     }
 }
 
+/// Inside a staging directory: the relative paths of its files, one a line, written
+/// (atomically) when the run starts moving them into the destination.
+const COMMIT_LIST: &str = ".commit";
+
 /// The files of one run, written into a hidden directory beside the destination and
 /// moved into the destination only by [`Staging::commit`]. Dropping an uncommitted
 /// staging area deletes it.
@@ -167,10 +177,8 @@ pub struct Staging {
 impl Staging {
     pub fn new(out_dir: &Path) -> Result<Self, OutputError> {
         let parent = parent_dir(out_dir);
-        let name = out_dir
-            .file_name()
-            .map_or_else(|| "out".into(), |n| n.to_string_lossy().into_owned());
-        let stage_dir = parent.join(format!(".{name}.staging-{}", std::process::id()));
+        recover(out_dir)?;
+        let stage_dir = parent.join(format!("{}{}", staging_prefix(out_dir), std::process::id()));
         let _ = fs::remove_dir_all(&stage_dir);
         fs::create_dir_all(&stage_dir).map_err(|source| OutputError::Io {
             path: stage_dir.clone(),
@@ -191,7 +199,7 @@ impl Staging {
             source,
         };
         fs::create_dir_all(parent_dir(&path)).map_err(io_err)?;
-        fs::write(&path, bytes).map_err(io_err)?;
+        write_and_sync(&path, bytes).map_err(io_err)?;
         self.files.push(rel.into());
         Ok(())
     }
@@ -210,18 +218,106 @@ impl Staging {
     /// earlier run with more views are removed so the directory describes one run.
     pub fn commit(mut self) -> Result<Vec<PathBuf>, OutputError> {
         let files = std::mem::take(&mut self.files);
-        for rel in &files {
-            let dest = self.out_dir.join(rel);
-            let io_err = |source| OutputError::Io {
-                path: dest.clone(),
-                source,
-            };
-            fs::create_dir_all(parent_dir(&dest)).map_err(io_err)?;
-            fs::rename(self.stage_dir.join(rel), &dest).map_err(io_err)?;
-        }
-        remove_stale_views(&self.out_dir.join("views"), &files)?;
+        let list: String = files
+            .iter()
+            .map(|rel| format!("{}\n", rel.display()))
+            .collect();
+        write_atomic(&self.stage_dir.join(COMMIT_LIST), list.as_bytes())?;
+        move_staged(&self.stage_dir, &self.out_dir, &files)?;
         Ok(files.iter().map(|rel| self.out_dir.join(rel)).collect())
     }
+}
+
+/// Moves the staged `files` that are still in `stage_dir` into `out_dir` (a resumed
+/// commit finds some already moved) and removes the views an earlier run left.
+fn move_staged(stage_dir: &Path, out_dir: &Path, files: &[PathBuf]) -> Result<(), OutputError> {
+    for rel in files {
+        let (src, dest) = (stage_dir.join(rel), out_dir.join(rel));
+        if !src.exists() {
+            continue;
+        }
+        let io_err = |source| OutputError::Io {
+            path: dest.clone(),
+            source,
+        };
+        fs::create_dir_all(parent_dir(&dest)).map_err(io_err)?;
+        fs::rename(&src, &dest).map_err(io_err)?;
+    }
+    remove_stale_views(&out_dir.join("views"), files)
+}
+
+/// `.<out name>.staging-`, followed by the process id of the run that stages.
+fn staging_prefix(out_dir: &Path) -> String {
+    let name = out_dir
+        .file_name()
+        .map_or_else(|| "out".into(), |n| n.to_string_lossy().into_owned());
+    format!(".{name}.staging-")
+}
+
+/// Finishes or discards what runs killed while writing `out_dir` left behind: a staging
+/// directory with a commit list is moved in (the run had staged everything), one without
+/// is deleted (the destination still holds the earlier output). Staging directories of
+/// live processes are left alone.
+pub fn recover(out_dir: &Path) -> Result<(), OutputError> {
+    let prefix = staging_prefix(out_dir);
+    let Ok(entries) = fs::read_dir(parent_dir(out_dir)) else {
+        return Ok(());
+    };
+    for entry in entries.flatten() {
+        let name = entry.file_name().to_string_lossy().into_owned();
+        let Some(pid) = name
+            .strip_prefix(&prefix)
+            .and_then(|p| p.parse::<i32>().ok())
+        else {
+            continue;
+        };
+        if process_alive(pid) {
+            continue;
+        }
+        let stage_dir = entry.path();
+        if let Ok(list) = fs::read_to_string(stage_dir.join(COMMIT_LIST)) {
+            let files: Vec<PathBuf> = list.lines().map(PathBuf::from).collect();
+            log::warn!(
+                "finishing the interrupted write of {} (process {pid})",
+                out_dir.display()
+            );
+            move_staged(&stage_dir, out_dir, &files)?;
+        }
+        fs::remove_dir_all(&stage_dir).map_err(|source| OutputError::Io {
+            path: stage_dir.clone(),
+            source,
+        })?;
+    }
+    remove_dead_temporaries(out_dir);
+    Ok(())
+}
+
+/// Deletes `.<name>.tmp-<pid>` files (see [`write_atomic`]) of processes that died
+/// before renaming them.
+fn remove_dead_temporaries(dir: &Path) {
+    let Ok(entries) = fs::read_dir(dir) else {
+        return;
+    };
+    for entry in entries.flatten() {
+        let name = entry.file_name().to_string_lossy().into_owned();
+        let pid = name
+            .strip_prefix('.')
+            .and_then(|n| n.rsplit_once(".tmp-"))
+            .and_then(|(_, pid)| pid.parse::<i32>().ok());
+        if pid.is_some_and(|pid| !process_alive(pid)) {
+            let _ = fs::remove_file(entry.path());
+        }
+    }
+}
+
+/// Whether a process with this id exists (our own counts: it is staging now).
+fn process_alive(pid: i32) -> bool {
+    if pid <= 0 {
+        return false;
+    }
+    // SAFETY: signal 0 only checks that the process exists and may be signalled.
+    let status = unsafe { libc::kill(pid, 0) };
+    status == 0 || std::io::Error::last_os_error().raw_os_error() == Some(libc::EPERM)
 }
 
 impl Drop for Staging {
@@ -309,6 +405,50 @@ mod tests {
         assert!(!out.join("views/view_07.png").exists());
         assert!(out.join("views/notes.txt").exists());
         assert_eq!(fs::read_dir(dir.path()).unwrap().count(), 1);
+    }
+
+    /// A staging directory as a run killed during its commit leaves it.
+    fn abandoned_commit(dir: &Path, out: &Path, with_list: bool) {
+        let stage = dir.join(format!("{}{}", staging_prefix(out), i32::MAX));
+        fs::create_dir_all(stage.join("views")).unwrap();
+        fs::write(stage.join("views/view_00.png"), b"new0").unwrap();
+        fs::write(stage.join("run.json"), b"new").unwrap();
+        if with_list {
+            // view_01 had been moved in already when the run died.
+            fs::write(out.join("views/view_01.png"), b"new1").unwrap();
+            let list = "views/view_00.png\nviews/view_01.png\nrun.json\n";
+            fs::write(stage.join(COMMIT_LIST), list).unwrap();
+        }
+    }
+
+    #[test]
+    fn next_run_finishes_or_discards_an_abandoned_commit() {
+        for with_list in [true, false] {
+            let dir = tempfile::tempdir().unwrap();
+            let out = dir.path().join("out");
+            fs::create_dir_all(out.join("views")).unwrap();
+            for (name, bytes) in [("views/view_00.png", "old0"), ("views/view_01.png", "old1")] {
+                fs::write(out.join(name), bytes).unwrap();
+            }
+            fs::write(out.join("views/view_02.png"), b"old2").unwrap();
+            fs::write(out.join("run.json"), b"old").unwrap();
+            fs::write(out.join(format!(".run.json.tmp-{}", i32::MAX)), b"ne").unwrap();
+            abandoned_commit(dir.path(), &out, with_list);
+            drop(Staging::new(&out).unwrap());
+            let read = |name: &str| fs::read_to_string(out.join(name)).ok();
+            if with_list {
+                assert_eq!(read("views/view_00.png").as_deref(), Some("new0"));
+                assert_eq!(read("views/view_01.png").as_deref(), Some("new1"));
+                assert_eq!(read("views/view_02.png"), None, "stale view kept");
+                assert_eq!(read("run.json").as_deref(), Some("new"));
+            } else {
+                assert_eq!(read("views/view_00.png").as_deref(), Some("old0"));
+                assert_eq!(read("views/view_02.png").as_deref(), Some("old2"));
+                assert_eq!(read("run.json").as_deref(), Some("old"));
+            }
+            assert_eq!(fs::read_dir(dir.path()).unwrap().count(), 1, "staging left");
+            assert_eq!(fs::read_dir(&out).unwrap().count(), 2, "temporary left");
+        }
     }
 
     #[test]

@@ -13,6 +13,8 @@ pub enum PfmError {
     Size(u64, u64),
     #[error("data holds {actual} bytes, the header promises {expected}")]
     DataLength { expected: usize, actual: usize },
+    #[error(transparent)]
+    Budget(#[from] crate::limits::TooLarge),
 }
 
 /// Refuse absurd sizes before allocating.
@@ -57,6 +59,11 @@ pub fn parse(bytes: &[u8]) -> Result<Map, PfmError> {
             actual: data.len(),
         });
     }
+    crate::limits::check_alloc(
+        format!("a {width}x{height} map"),
+        (width * height) as u64,
+        4,
+    )?;
     let little = scale < 0.0;
     let mut out = vec![0.0f32; width * height];
     for (i, chunk) in data.chunks_exact(4).enumerate() {

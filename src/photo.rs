@@ -1,12 +1,13 @@
 //! Loading the input photo: decoding with allocation limits, EXIF orientation and the
 //! horizontal field of view.
 
-use std::fs::File;
-use std::io::BufReader;
+use std::io::Cursor;
 use std::path::{Path, PathBuf};
 
 use image::imageops::FilterType;
-use image::{DynamicImage, ImageDecoder, ImageReader, Limits, Rgb32FImage, RgbImage};
+use image::{DynamicImage, ImageDecoder, ImageFormat, ImageReader, Rgb32FImage, RgbImage};
+
+use crate::limits::{self, ReadError, TooLarge};
 
 /// Horizontal field of view assumed when the photo carries no usable metadata.
 pub const DEFAULT_HFOV_DEG: f64 = 45.0;
@@ -14,7 +15,9 @@ pub const DEFAULT_HFOV_DEG: f64 = 45.0;
 /// Larger photos are refused before their pixels are allocated: a phone photo is ~12k px
 /// on its long side at most, and a hostile header can claim 4 billion.
 pub const MAX_PHOTO_SIDE: u32 = 16_384;
-const MAX_DECODE_BYTES: u64 = 2 << 30;
+/// Bytes per pixel a photo takes while loading, besides the decoder's own buffer: the
+/// 8-bit RGB copy and the float RGB image the pipeline works on.
+const WORKING_BYTES_PER_PIXEL: u64 = 3 + 12;
 
 /// The diagonal of a 36×24 mm frame, which defines "35 mm equivalent" focal lengths.
 const FULL_FRAME_DIAGONAL_MM: f64 = 43.266_615;
@@ -33,6 +36,14 @@ pub enum PhotoError {
     },
     #[error("photo {path} is empty (0 pixels)")]
     Empty { path: PathBuf },
+    #[error("photo {path} is {width}x{height} pixels; photos may be at most {MAX_PHOTO_SIDE} pixels a side")]
+    Size {
+        path: PathBuf,
+        width: u32,
+        height: u32,
+    },
+    #[error("photo {path}: {source}")]
+    TooLarge { path: PathBuf, source: TooLarge },
     #[error("field of view {0}° is outside (0°, 180°)")]
     BadFov(f64),
 }
@@ -151,10 +162,11 @@ impl Photo {
         if let Some(fov) = fov_override {
             check_fov(fov)?;
         }
-        let image = SrgbImage::from_rgb8(&load_rgb8(path)?);
+        let bytes = read(path)?;
+        let image = SrgbImage::from_rgb8(&decode_rgb8(path, &bytes)?);
         let (hfov_deg, fov_source) = match fov_override {
             Some(fov) => (fov, FovSource::CommandLine),
-            None => match exif_hfov(path, image.width(), image.height()) {
+            None => match exif_hfov(&bytes, image.width(), image.height()) {
                 Some(fov) => (fov, FovSource::Exif35mmFocalLength),
                 None => (DEFAULT_HFOV_DEG, FovSource::Default),
             },
@@ -177,7 +189,13 @@ impl Photo {
 /// Decodes an 8-bit RGB image within the size limits, turned upright by its EXIF
 /// orientation.
 pub fn load_rgb8(path: &Path) -> Result<RgbImage, PhotoError> {
-    let (mut decoded, orientation) = decode(path)?;
+    decode_rgb8(path, &read(path)?)
+}
+
+/// [`load_rgb8`] on a photo's bytes; `path` names it in errors and gives the format
+/// when the content does not.
+pub fn decode_rgb8(path: &Path, bytes: &[u8]) -> Result<RgbImage, PhotoError> {
+    let (mut decoded, orientation) = decode(path, bytes)?;
     decoded.apply_orientation(orientation);
     if decoded.width() == 0 || decoded.height() == 0 {
         return Err(PhotoError::Empty { path: path.into() });
@@ -193,27 +211,43 @@ fn check_fov(fov: f64) -> Result<(), PhotoError> {
     }
 }
 
-fn decode(path: &Path) -> Result<(DynamicImage, image::metadata::Orientation), PhotoError> {
+fn read(path: &Path) -> Result<Vec<u8>, PhotoError> {
+    limits::read_input(path).map_err(|e| match e {
+        ReadError::Io(source) => PhotoError::Io {
+            path: path.into(),
+            source,
+        },
+        ReadError::TooLarge(source) => PhotoError::TooLarge {
+            path: path.into(),
+            source,
+        },
+    })
+}
+
+fn decode(
+    path: &Path,
+    bytes: &[u8],
+) -> Result<(DynamicImage, image::metadata::Orientation), PhotoError> {
     let decode_err = |source| PhotoError::Decode {
         path: path.into(),
         source,
     };
-    let mut reader = ImageReader::open(path)
-        .map_err(|source| PhotoError::Io {
-            path: path.into(),
-            source,
-        })?
+    let mut reader = ImageReader::new(Cursor::new(bytes))
         .with_guessed_format()
         .map_err(|source| PhotoError::Io {
             path: path.into(),
             source,
         })?;
-    let mut limits = Limits::default();
-    limits.max_image_width = Some(MAX_PHOTO_SIDE);
-    limits.max_image_height = Some(MAX_PHOTO_SIDE);
-    limits.max_alloc = Some(MAX_DECODE_BYTES);
-    reader.limits(limits);
+    if reader.format().is_none() {
+        if let Ok(format) = ImageFormat::from_path(path) {
+            reader.set_format(format);
+        }
+    }
+    // Sides are checked below, with a message that gives them; the limit left here holds
+    // the decoders' own buffers to the input budget.
+    reader.limits(limits::image_limits(u32::MAX));
     let mut decoder = reader.into_decoder().map_err(decode_err)?;
+    check_size(path, decoder.dimensions(), decoder.total_bytes())?;
     let orientation = decoder
         .orientation()
         .unwrap_or(image::metadata::Orientation::NoTransforms);
@@ -221,13 +255,32 @@ fn decode(path: &Path) -> Result<(DynamicImage, image::metadata::Orientation), P
     Ok((image, orientation))
 }
 
+/// Refuses a photo by its header before the decoder allocates its pixels (`image` does
+/// not hold that buffer to the limits).
+fn check_size(path: &Path, (width, height): (u32, u32), decoded: u64) -> Result<(), PhotoError> {
+    if width > MAX_PHOTO_SIDE || height > MAX_PHOTO_SIDE {
+        return Err(PhotoError::Size {
+            path: path.into(),
+            width,
+            height,
+        });
+    }
+    let pixels = u64::from(width) * u64::from(height);
+    let needed = decoded.saturating_add(pixels * WORKING_BYTES_PER_PIXEL);
+    limits::check_alloc(format!("a {width}x{height} photo"), needed, 1).map_err(|source| {
+        PhotoError::TooLarge {
+            path: path.into(),
+            source,
+        }
+    })
+}
+
 /// Horizontal FOV from the EXIF 35 mm-equivalent focal length. The equivalence is
 /// defined on the diagonal, so the horizontal angle follows from the image's own aspect
 /// (portrait photos get the narrow angle).
-fn exif_hfov(path: &Path, width: u32, height: u32) -> Option<f64> {
-    let file = File::open(path).ok()?;
+pub fn exif_hfov(bytes: &[u8], width: u32, height: u32) -> Option<f64> {
     let exif = exif::Reader::new()
-        .read_from_container(&mut BufReader::new(file))
+        .read_from_container(&mut Cursor::new(bytes))
         .ok()?;
     let field = exif.get_field(exif::Tag::FocalLengthIn35mmFilm, exif::In::PRIMARY)?;
     let focal_mm = f64::from(field.value.get_uint(0)?);
@@ -305,9 +358,15 @@ mod tests {
         let path = dir.path().join("huge.png");
         std::fs::write(&path, png_claiming(100_000, 100_000)).unwrap();
         let err = Photo::load(&path, None).unwrap_err();
-        assert!(matches!(err, PhotoError::Decode { .. }), "{err}");
+        assert!(matches!(err, PhotoError::Size { .. }), "{err}");
         assert!(err.to_string().contains("huge.png"), "{err}");
-        assert!(err.to_string().contains("limit"), "{err}");
+        assert!(err.to_string().contains("100000x100000"), "{err}");
+        // Within the side limit, the memory budget refuses it (16000² px at 15 B/px
+        // is 3.6 GiB, beyond a quarter of the default ceiling).
+        std::fs::write(&path, png_claiming(16_000, 16_000)).unwrap();
+        let err = Photo::load(&path, None).unwrap_err();
+        assert!(matches!(err, PhotoError::TooLarge { .. }), "{err}");
+        assert!(err.to_string().contains("--max-memory"), "{err}");
         // The patched file is otherwise valid: with a true size it decodes.
         std::fs::write(&path, png_claiming(1, 1)).unwrap();
         assert!(Photo::load(&path, None).is_ok());

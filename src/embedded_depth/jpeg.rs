@@ -137,6 +137,13 @@ pub fn extended_xmp(
             "Extended XMP claims {full} bytes (limit {MAX_EXTENDED})"
         ));
     }
+    let present: usize = mine.iter().map(|c| c.data.len()).sum();
+    if present < full {
+        return Err(format!(
+            "Extended XMP {guid} is incomplete: its {} chunks hold {present} of {full} bytes",
+            mine.len()
+        ));
+    }
     let mut packet = vec![0u8; full];
     let mut spans = Vec::with_capacity(mine.len());
     for c in &mine {

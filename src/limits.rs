@@ -1,0 +1,202 @@
+//! The run's memory ceiling (`--max-memory`) and the checks every input parser makes
+//! against it before allocating: a hostile header can claim gigabytes in a few bytes,
+//! and a kiosk must refuse such a file with a message instead of being killed.
+//!
+//! One decoded input (a photo, a depth map, an embedded depth image) may use at most a
+//! quarter of the ceiling, because the pipeline keeps several working copies of
+//! photo-sized buffers; files are refused before they are read when they are larger than
+//! that. [`apply_process_limit`] also asks the kernel to hold the process's heap to the
+//! ceiling, so that what the checks cannot foresee ends the run instead of the machine.
+
+use std::fmt;
+use std::path::Path;
+use std::sync::atomic::{AtomicU64, Ordering};
+
+/// The ceiling when `--max-memory` is not given: room for a 50-megapixel photo on a
+/// small board computer with 4 GiB or more.
+pub const DEFAULT_MAX_MEMORY: u64 = 4 << 30;
+/// Below this not even a small photo and the shipped depth network fit.
+pub const MIN_MAX_MEMORY: u64 = 64 << 20;
+/// What one decoded input may use, as a fraction (1/n) of the ceiling.
+const INPUT_SHARE: u64 = 4;
+
+static MAX_MEMORY: AtomicU64 = AtomicU64::new(DEFAULT_MAX_MEMORY);
+
+/// The memory ceiling of this run, in bytes.
+pub fn max_memory() -> u64 {
+    MAX_MEMORY.load(Ordering::Relaxed)
+}
+
+/// Sets the ceiling for the checks of this process (not the kernel limit).
+pub fn set_max_memory(bytes: u64) {
+    MAX_MEMORY.store(bytes.max(MIN_MAX_MEMORY), Ordering::Relaxed);
+}
+
+/// Bytes one decoded input may use.
+pub fn input_budget() -> u64 {
+    max_memory() / INPUT_SHARE
+}
+
+/// An input that would need more memory than the ceiling allows.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+#[error(
+    "{what} would need {} of memory, more than the {} one input may use \
+     (a quarter of --max-memory {}); raise --max-memory to read it",
+    Bytes(*.needed), Bytes(*.budget), Bytes(*.budget * INPUT_SHARE)
+)]
+pub struct TooLarge {
+    pub what: String,
+    pub needed: u64,
+    pub budget: u64,
+}
+
+/// Checks that `count` values of `size` bytes each fit one input's budget; `what` says
+/// what they are ("a 9000x9000 depth map").
+pub fn check_alloc(what: impl fmt::Display, count: u64, size: u64) -> Result<(), TooLarge> {
+    let needed = count.saturating_mul(size);
+    let budget = input_budget();
+    if needed > budget {
+        return Err(TooLarge {
+            what: what.to_string(),
+            needed,
+            budget,
+        });
+    }
+    Ok(())
+}
+
+/// Reads a whole input file, refusing it by its size before reading.
+pub fn read_input(path: &Path) -> Result<Vec<u8>, ReadError> {
+    let len = std::fs::metadata(path).map_err(ReadError::Io)?.len();
+    check_alloc(format!("a file of {len} bytes"), len, 1).map_err(ReadError::TooLarge)?;
+    std::fs::read(path).map_err(ReadError::Io)
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum ReadError {
+    #[error(transparent)]
+    Io(std::io::Error),
+    #[error(transparent)]
+    TooLarge(TooLarge),
+}
+
+/// Limits for the `image` crate's decoders: sides up to `max_side` and the input budget
+/// for their own buffers. (The decoded image itself is checked by the caller: `image`
+/// allocates it without consulting the limit.)
+pub fn image_limits(max_side: u32) -> image::Limits {
+    let mut limits = image::Limits::default();
+    limits.max_image_width = Some(max_side);
+    limits.max_image_height = Some(max_side);
+    limits.max_alloc = Some(input_budget());
+    limits
+}
+
+/// Parses a size such as `4G`, `512M`, `1.5GiB` or `1073741824` (bytes); the units are
+/// binary (K = 1024).
+pub fn parse_size(text: &str) -> Result<u64, String> {
+    let t = text.trim();
+    let split = t
+        .find(|c: char| !(c.is_ascii_digit() || c == '.'))
+        .unwrap_or(t.len());
+    let (number, unit) = t.split_at(split);
+    let shift = match unit.trim().to_ascii_lowercase().as_str() {
+        "" | "b" => 0,
+        "k" | "kb" | "kib" => 10,
+        "m" | "mb" | "mib" => 20,
+        "g" | "gb" | "gib" => 30,
+        "t" | "tb" | "tib" => 40,
+        other => {
+            return Err(format!(
+                "unknown unit {other:?} in {text:?}: use K, M, G or T"
+            ))
+        }
+    };
+    let value: f64 = number
+        .parse()
+        .map_err(|_| format!("{text:?} is not a size such as 4G or 512M"))?;
+    let bytes = value * (1u64 << shift) as f64;
+    if !(bytes.is_finite() && bytes >= MIN_MAX_MEMORY as f64 && bytes < u64::MAX as f64) {
+        return Err(format!(
+            "{text:?} is out of range: give at least {}",
+            Bytes(MIN_MAX_MEMORY)
+        ));
+    }
+    Ok(bytes as u64)
+}
+
+/// Asks the kernel to hold the process's data segment (heap and private writable
+/// mappings) to `bytes`, so that an allocation the checks did not foresee fails (and
+/// aborts the run) instead of swapping or waking the OOM killer.
+pub fn apply_process_limit(bytes: u64) -> std::io::Result<()> {
+    let mut limit = libc::rlimit {
+        rlim_cur: 0,
+        rlim_max: 0,
+    };
+    // SAFETY: the pointer is to a live rlimit struct.
+    if unsafe { libc::getrlimit(libc::RLIMIT_DATA, &mut limit) } != 0 {
+        return Err(std::io::Error::last_os_error());
+    }
+    // Only the soft limit: the hard one stays, so child processes may raise theirs.
+    limit.rlim_cur = (bytes as libc::rlim_t).min(limit.rlim_max);
+    // SAFETY: as above.
+    if unsafe { libc::setrlimit(libc::RLIMIT_DATA, &limit) } != 0 {
+        return Err(std::io::Error::last_os_error());
+    }
+    Ok(())
+}
+
+/// A byte count for messages: "1.5 GiB", "300 MiB".
+pub struct Bytes(pub u64);
+
+impl fmt::Display for Bytes {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let units = [("GiB", 30), ("MiB", 20), ("KiB", 10)];
+        for (name, shift) in units {
+            if self.0 >= 1 << shift {
+                let v = self.0 as f64 / (1u64 << shift) as f64;
+                return if v.fract() == 0.0 {
+                    write!(f, "{v:.0} {name}")
+                } else {
+                    write!(f, "{v:.1} {name}")
+                };
+            }
+        }
+        write!(f, "{} bytes", self.0)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sizes_parse_with_binary_units() {
+        assert_eq!(parse_size("4G"), Ok(4 << 30));
+        assert_eq!(parse_size("512M"), Ok(512 << 20));
+        assert_eq!(parse_size("1.5GiB"), Ok(3 << 29));
+        assert_eq!(parse_size("134217728"), Ok(128 << 20));
+        assert!(parse_size("4X").unwrap_err().contains("unit"));
+        assert!(parse_size("1M").unwrap_err().contains("at least 64 MiB"));
+        assert!(parse_size("G").is_err());
+        assert!(parse_size("1e400G").is_err());
+    }
+
+    #[test]
+    fn bytes_print_in_the_largest_whole_unit() {
+        assert_eq!(Bytes(4 << 30).to_string(), "4 GiB");
+        assert_eq!(Bytes(3 << 29).to_string(), "1.5 GiB");
+        assert_eq!(Bytes(300).to_string(), "300 bytes");
+    }
+
+    #[test]
+    fn allocation_beyond_a_quarter_of_the_ceiling_is_refused() {
+        let budget = input_budget();
+        assert!(check_alloc("x", budget, 1).is_ok());
+        let err = check_alloc("a 9x9 map", budget / 4 + 1, 4).unwrap_err();
+        assert_eq!(err.needed, budget + 4);
+        let text = err.to_string();
+        assert!(text.starts_with("a 9x9 map would need"), "{text}");
+        assert!(text.contains("--max-memory"), "{text}");
+        assert!(check_alloc("x", u64::MAX, 8).is_err());
+    }
+}

@@ -337,7 +337,11 @@ def insert_conv_qdq(model, qparams: dict[str, dict], activations: bool = True) -
             ]
             node.input[0] = f"{stem}_dq"
         new_nodes.append(node)
-    plain = [n.input[1] for n in g.node if n.op_type == "Conv" and n.input[1] not in done]
+    plain = [
+        n.input[1]
+        for n in g.node
+        if n.op_type == "Conv" and n.input[1] not in done and "/upsample." not in n.name
+    ]
     if plain:
         raise ExportError(f"convolutions without quantisation parameters: {plain}")
     del g.node[:]

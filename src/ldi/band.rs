@@ -18,6 +18,11 @@ use std::collections::VecDeque;
 
 use super::edges::Cuts;
 
+/// How many edge thresholds nearer than a band sample a pixel may be and still give
+/// it colour. Cuts are steps of at least one threshold between neighbours, while sources
+/// lie several pixels away on a possibly sloped background.
+const SOURCE_SLOPE_ALLOWANCE: f32 = 3.0;
+
 /// No background sample at this pixel.
 pub(super) const NONE: u32 = u32::MAX;
 
@@ -55,6 +60,14 @@ impl BandInput<'_> {
     /// Whether the original pixel `i` lies on or behind a surface of disparity `d`.
     fn behind_or_on(&self, i: usize, d: f32) -> bool {
         self.disparity[i] <= d * (1.0 + self.threshold)
+    }
+
+    /// Whether the original pixel `i` may give its colour to a band sample of
+    /// disparity `d`: like [`Self::behind_or_on`], with room for the background's own
+    /// slope between the two pixels (a floor or a wall seen at an angle is nearer
+    /// above or beside the band than in it), but never an occluder's step.
+    fn colour_source(&self, i: usize, d: f32) -> bool {
+        self.disparity[i] <= d * (1.0 + SOURCE_SLOPE_ALLOWANCE * self.threshold)
     }
 
     fn neighbours4(&self, i: usize) -> impl Iterator<Item = usize> {
@@ -171,7 +184,7 @@ fn best_source(band: &Band, input: &BandInput, r: usize, d: f32, reach: usize) -
             return;
         }
         let s = (sy * w + sx) as usize;
-        if !input.behind_or_on(s, d) || best.1 == s as u32 {
+        if !input.colour_source(s, d) || best.1 == s as u32 {
             return;
         }
         let score = patch_distance(input, &target, sx, sy, d);
@@ -189,7 +202,7 @@ fn best_source(band: &Band, input: &BandInput, r: usize, d: f32, reach: usize) -
                 consider(s % w + ox, s / w + oy);
             }
             // Background next to the hole: itself and its mirror image across r's edge.
-            _ if input.behind_or_on(m, d) => {
+            _ if input.colour_source(m, d) => {
                 consider(mx, my);
                 consider(mx - ox, my - oy);
             }
@@ -225,7 +238,7 @@ fn known_patch(
             }
             let p = (py * w + px) as usize;
             match band.at[p] {
-                NONE if input.behind_or_on(p, d) => known.push((dx, dy, input.colour(p))),
+                NONE if input.colour_source(p, d) => known.push((dx, dy, input.colour(p))),
                 NONE => {}
                 k => known.push((dx, dy, input.colour(band.source[k as usize] as usize))),
             }
@@ -248,7 +261,7 @@ fn patch_distance(
     for &(dx, dy, c) in target {
         let (px, py) = ((sx + dx).clamp(0, w - 1), (sy + dy).clamp(0, h - 1));
         let p = (py * w + px) as usize;
-        sum += if input.behind_or_on(p, d) {
+        sum += if input.colour_source(p, d) {
             let s = input.colour(p);
             (0..3).map(|k| (s[k] - c[k]).powi(2)).sum::<f32>()
         } else {

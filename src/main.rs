@@ -56,6 +56,11 @@ struct Cli {
     /// More log output (-v: progress, -vv: debug).
     #[arg(short, long, action = clap::ArgAction::Count, global = true)]
     verbose: u8,
+    /// Memory ceiling for the run (e.g. 2G, 512M): inputs whose decoded size would take
+    /// more than a quarter of it are refused, and the kernel holds the heap to it.
+    #[arg(long, global = true, value_name = "SIZE", default_value = "4G",
+          value_parser = reshader::limits::parse_size)]
+    max_memory: u64,
     #[command(subcommand)]
     command: Command,
 }
@@ -313,6 +318,10 @@ fn main() -> ExitCode {
         .filter_level(level)
         .format_timestamp(None)
         .init();
+    reshader::limits::set_max_memory(cli.max_memory);
+    if let Err(e) = reshader::limits::apply_process_limit(cli.max_memory) {
+        log::warn!("cannot set the memory limit of the process: {e}");
+    }
     match run(cli.command) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {

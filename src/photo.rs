@@ -36,6 +36,8 @@ pub enum PhotoError {
     },
     #[error("photo {path} is empty (0 pixels)")]
     Empty { path: PathBuf },
+    #[error("photo {path} is an empty file (0 bytes)")]
+    EmptyFile { path: PathBuf },
     #[error("photo {path} is {width}x{height} pixels; photos may be at most {MAX_PHOTO_SIDE} pixels a side")]
     Size {
         path: PathBuf,
@@ -232,6 +234,9 @@ fn decode(
         path: path.into(),
         source,
     };
+    if bytes.is_empty() {
+        return Err(PhotoError::EmptyFile { path: path.into() });
+    }
     let mut reader = ImageReader::new(Cursor::new(bytes))
         .with_guessed_format()
         .map_err(|source| PhotoError::Io {

@@ -97,6 +97,37 @@ pub struct Fitted {
     pub reference: Intrinsics,
 }
 
+impl Fitted {
+    /// `image` (taken with `hfov_deg`) and its depth shrunk to cover views of
+    /// `width`×`height` when they have more pixels than such views can show; see
+    /// [`Scene::fitted`].
+    pub fn new(
+        image: &SrgbImage,
+        hfov_deg: f64,
+        depth: &DepthMap,
+        width: u32,
+        height: u32,
+    ) -> Fitted {
+        let (pw, ph) = (image.width(), image.height());
+        let cover = (f64::from(width) / f64::from(pw)).max(f64::from(height) / f64::from(ph));
+        let (fw, fh) = if cover < 1.0 {
+            (
+                ((f64::from(pw) * cover).ceil() as u32).max(1),
+                ((f64::from(ph) * cover).ceil() as u32).max(1),
+            )
+        } else {
+            (pw, ph)
+        };
+        let source = Intrinsics::from_hfov(fw, fh, hfov_deg);
+        Fitted {
+            image: image.resized(fw, fh),
+            depth: depth.resized(fw as usize, fh as usize),
+            source,
+            reference: source.cover(width, height),
+        }
+    }
+}
+
 impl Scene {
     /// Loads the photo (timed as `load`) and its depth: a file (also `load`) or the
     /// estimator (`depth`, and `depth_model` when this call loads the network).
@@ -142,23 +173,13 @@ impl Scene {
     /// show (the mesh has one vertex per pixel); smaller photos are kept and magnified
     /// by the rasteriser.
     pub fn fitted(&self, width: u32, height: u32) -> Fitted {
-        let (pw, ph) = (self.photo.image.width(), self.photo.image.height());
-        let cover = (f64::from(width) / f64::from(pw)).max(f64::from(height) / f64::from(ph));
-        let (fw, fh) = if cover < 1.0 {
-            (
-                ((f64::from(pw) * cover).ceil() as u32).max(1),
-                ((f64::from(ph) * cover).ceil() as u32).max(1),
-            )
-        } else {
-            (pw, ph)
-        };
-        let source = Intrinsics::from_hfov(fw, fh, self.photo.hfov_deg);
-        Fitted {
-            image: self.photo.image.resized(fw, fh),
-            depth: self.depth.resized(fw as usize, fh as usize),
-            source,
-            reference: source.cover(width, height),
-        }
+        Fitted::new(
+            &self.photo.image,
+            self.photo.hfov_deg,
+            &self.depth,
+            width,
+            height,
+        )
     }
 
     fn inputs(&self) -> Result<Inputs, PipelineError> {

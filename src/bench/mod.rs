@@ -19,8 +19,9 @@ use crate::engine::{self, EngineError};
 use crate::manifest::{self, ManifestError, Precision, Task};
 use crate::output::OutputError;
 use crate::photo::PhotoError;
-use crate::relocate::RelocateError;
+use crate::relocate::{RelocateArgs, RelocateError, Relocator};
 use crate::reshade::Reshader;
+use crate::reshade_net::cli::{ReshadeArgs, DEFAULT_MODEL_DIR};
 use crate::reshade_net::{NetError, NetOptions, NetReshader};
 use crate::views::ViewError;
 
@@ -36,10 +37,12 @@ times are not representative.
 
 Examples:
   cargo run --release -- bench --out bench.md --out bench.json
-  cargo run --release -- bench --model models/reshade --compare bench.json
+  cargo run --release -- bench --boards looking-glass-portrait --compare bench.json
 
-The reshading model timed is --model (default: the tiny test fixture, labelled as a
-stand-in in every table). See bench/README.md.";
+The reshading model timed is --model, else models/reshade (or $RESHADER_MODEL) when it
+has the --precision asked for, else an untrained export of the shipped architecture
+made once into the cache by bench/export_untrained.py, else the tiny test fixture; a
+stand-in is labelled as such in every table. See bench/README.md.";
 
 pub const DEFAULT_BOARDS: &str = "looking-glass-portrait,looking-glass-go,generic-8view";
 
@@ -90,15 +93,14 @@ fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> BenchError + '_ {
 /// Options of `reshader bench`.
 #[derive(Clone, Debug, clap::Args)]
 pub struct BenchArgs {
-    /// Reshading model: a manifest (.json) or a directory of them. The default is the
-    /// tiny test fixture, a stand-in that the tables label as such.
-    #[arg(long, default_value = "models/fixtures")]
-    pub model: PathBuf,
-    /// Precision of the reshading model.
-    #[arg(long, default_value = "int8")]
-    pub precision: Precision,
-    /// Precision of the shipped depth model (models/depth).
-    #[arg(long, default_value = "int8")]
+    /// The reshading network and its options, as `render` takes them.
+    #[command(flatten)]
+    pub reshade: ReshadeArgs,
+    /// The relocator, as `render` takes it.
+    #[command(flatten)]
+    pub relocate: RelocateArgs,
+    /// Precision of the shipped depth model (models/depth), as `render --depth-precision`.
+    #[arg(long, default_value = "fp32")]
     pub depth_precision: Precision,
     /// The real photo to convert (JPEG or PNG).
     #[arg(long, default_value = "examples/pumpkin/pumpkin.jpg")]
@@ -112,7 +114,7 @@ pub struct BenchArgs {
     /// Timed runs per photo and board (after one untimed warm-up run).
     #[arg(long, default_value_t = 3)]
     pub runs: usize,
-    /// Threads for inference and weaving.
+    /// Threads for inference (unless --reshade-threads) and weaving.
     #[arg(long, default_value_t = 2)]
     pub threads: usize,
     /// Write the report: .md for Markdown, .json for the comparable form (repeatable).
@@ -134,8 +136,8 @@ pub struct BenchArgs {
     /// else ~/.cache/reshader/venv/bin/python, else what scripts/python-env prints].
     #[arg(long)]
     pub python: Option<PathBuf>,
-    /// Where the exported naive network is cached (never committed) [default:
-    /// ~/.cache/reshader/bench].
+    /// Where the untrained exports (naive network, reshading stand-in) are cached, never
+    /// committed [default: ~/.cache/reshader/bench].
     #[arg(long)]
     pub cache: Option<PathBuf>,
 }
@@ -207,7 +209,40 @@ pub(crate) struct Context {
     pub depth: DepthNet,
     pub reshader: NetReshader,
     pub reshade_label: String,
+    pub relocator: Box<dyn Relocator>,
+    /// The same model with the per-view cost options (a)+(b) of the reshading design,
+    /// timed beside the runtime's reshading for the naive comparison.
+    pub candidate: Option<NetReshader>,
     pub work_dir: TempDir,
+}
+
+/// Working resolution and key views of the candidate design timed against the naive
+/// configuration (README, "Per-view cost options": ×0.5 and 8 key views).
+pub const CANDIDATE_SCALE: f64 = 0.5;
+pub const CANDIDATE_KEY_VIEWS: usize = 8;
+
+/// The reshading model the benchmark times, and whether it stands in for the shipped one.
+#[derive(Clone, Debug, PartialEq)]
+pub enum ModelChoice {
+    /// Named with --model or $RESHADER_MODEL.
+    Given(PathBuf),
+    /// models/reshade: the shipped model.
+    Shipped(PathBuf),
+    /// The shipped architecture with random weights, exported into the cache.
+    Untrained(PathBuf),
+    /// The tiny test network.
+    Fixture(PathBuf),
+}
+
+impl ModelChoice {
+    pub fn path(&self) -> &Path {
+        match self {
+            ModelChoice::Given(p)
+            | ModelChoice::Shipped(p)
+            | ModelChoice::Untrained(p)
+            | ModelChoice::Fixture(p) => p,
+        }
+    }
 }
 
 /// Measures every case and the comparisons; writes nothing but its scratch directory.
@@ -215,15 +250,43 @@ pub fn run(args: &BenchArgs, command: &str) -> Result<Report, BenchError> {
     args.check()?;
     let started = Instant::now();
     let load_average = load_average();
-    let engine = engine::by_name("tract", args.threads)?;
-    let depth = DepthNet::shipped(args.depth_precision, engine.clone())?;
-    let reshader = NetReshader::load(&args.model, args.precision, engine, NetOptions::default())?;
+    let depth = DepthNet::shipped(
+        args.depth_precision,
+        engine::by_name("tract", args.threads)?,
+    )?;
+    let model = choose_model(args)?;
+    let r = &args.reshade;
+    let threads = r.reshade_threads.unwrap_or(args.threads);
+    let per_view = (threads / r.parallel_views.max(1)).max(1);
+    let reshader = NetReshader::load(
+        model.path(),
+        r.precision,
+        engine::by_name(&r.engine, per_view)?,
+        r.options(),
+    )?;
     let reshade_label = reshade_label(&reshader);
+    let candidate_options = NetOptions {
+        scale: CANDIDATE_SCALE,
+        key_views: Some(CANDIDATE_KEY_VIEWS),
+        ..r.options()
+    };
+    let candidate = if args.no_naive || candidate_options == r.options() {
+        None
+    } else {
+        Some(NetReshader::load(
+            model.path(),
+            r.precision,
+            engine::by_name(&r.engine, per_view)?,
+            candidate_options,
+        )?)
+    };
     let ctx = Context {
         threads: args.threads,
         depth,
         reshader,
         reshade_label,
+        relocator: args.relocate.build(),
+        candidate,
         work_dir: TempDir::new()?,
     };
     let boards = args
@@ -239,11 +302,12 @@ pub fn run(args: &BenchArgs, command: &str) -> Result<Report, BenchError> {
             synthetic,
         ),
     ];
-    let mut peak = memory::vm_hwm_mib();
+    // The whole run's peak is the largest case's: generating the synthetic photo is
+    // not part of a conversion, and the peer and naive models are not the runtime's.
+    let mut peak = None;
     let mut cases = Vec::new();
     for (label, path) in &photos {
         for board in &boards {
-            peak = max_opt(peak, memory::vm_hwm_mib());
             let reset = memory::reset_peak();
             let mut case = stages::run_case(&ctx, label, path, board, args.runs)?;
             let case_peak = memory::vm_hwm_mib();
@@ -256,7 +320,7 @@ pub fn run(args: &BenchArgs, command: &str) -> Result<Report, BenchError> {
     let peer = if args.no_peer {
         Vec::new()
     } else {
-        peer_rows(args, &ctx, &boards)?
+        peer_rows(args, &ctx, model.path(), &cases)?
     };
     let naive = if args.no_naive {
         Vec::new()
@@ -278,7 +342,7 @@ pub fn run(args: &BenchArgs, command: &str) -> Result<Report, BenchError> {
         depth_model: depth_label(&ctx.depth),
         reshade_model: ctx.reshade_label.clone(),
         cases,
-        peak_rss_mib: max_opt(peak, memory::vm_hwm_mib()),
+        peak_rss_mib: peak,
         peer,
         naive,
         wall_s: started.elapsed().as_secs_f64(),
@@ -292,16 +356,59 @@ fn max_opt(a: Option<f64>, b: Option<f64>) -> Option<f64> {
     }
 }
 
-/// The model's own description, and a loud label when it is the test fixture: its
-/// times say nothing about what a trained reshading model costs.
+/// The model's own description, with a loud label on a stand-in (told by the name the
+/// exporter gave it, however it was chosen).
 fn reshade_label(net: &NetReshader) -> String {
     let description = net.description();
     if description.contains("fixture") {
         format!(
-            "{description} — FIXTURE STAND-IN (tiny test network, not a trained reshading model)"
+            "{description} — FIXTURE STAND-IN (tiny test network: its times say nothing about a trained reshading model)"
+        )
+    } else if description.contains("untrained") {
+        format!(
+            "{description} — UNTRAINED STAND-IN (the shipped architecture with random weights: a trained model's cost, not its pictures)"
         )
     } else {
         description
+    }
+}
+
+/// --model, else $RESHADER_MODEL, else models/reshade when it has the precision asked
+/// for, else the untrained stand-in (exported once), else the fixture.
+pub fn choose_model(args: &BenchArgs) -> Result<ModelChoice, BenchError> {
+    let precision = args.reshade.precision;
+    if let Some(p) = args
+        .reshade
+        .model
+        .clone()
+        .or_else(|| std::env::var_os("RESHADER_MODEL").map(PathBuf::from))
+    {
+        return Ok(ModelChoice::Given(p));
+    }
+    let shipped = source_path(DEFAULT_MODEL_DIR);
+    if shipped.is_dir() && !reshade_manifests(&shipped, Some(precision))?.is_empty() {
+        return Ok(ModelChoice::Shipped(shipped));
+    }
+    log::warn!(
+        "no {precision} reshading model in {}: timing a stand-in",
+        shipped.display()
+    );
+    if precision != Precision::Int8 {
+        match untrained_model(args, precision) {
+            Ok(path) => return Ok(ModelChoice::Untrained(path)),
+            Err(e) => log::warn!("untrained stand-in not available ({e}); using the fixture"),
+        }
+    }
+    Ok(ModelChoice::Fixture(source_path("models/fixtures")))
+}
+
+/// A path relative to the working directory, else to the source tree.
+fn source_path(rel: &str) -> PathBuf {
+    let local = PathBuf::from(rel);
+    if local.exists() {
+        local
+    } else {
+        Path::new(env!("CARGO_MANIFEST_DIR")).join(rel)
     }
 }
 
@@ -365,14 +472,7 @@ mod memory {
 
 /// The source tree's copy of a benchmark script.
 fn script(name: &str) -> PathBuf {
-    let local = Path::new("bench").join(name);
-    if local.is_file() {
-        local
-    } else {
-        Path::new(env!("CARGO_MANIFEST_DIR"))
-            .join("bench")
-            .join(name)
-    }
+    source_path(&format!("bench/{name}"))
 }
 
 fn cache_home() -> PathBuf {
@@ -407,29 +507,54 @@ fn python(args: &BenchArgs) -> Result<PathBuf, BenchError> {
     Ok(PathBuf::from(venv).join("bin/python"))
 }
 
-/// The reshading model's files at the benchmark's precision: the manifest given, or
-/// every reshading manifest of the directory given.
-fn reshade_manifests(model: &Path, precision: Precision) -> Result<Vec<PathBuf>, BenchError> {
+/// The reshading manifests of `model` at `precision` (None: every precision). For a
+/// directory: its manifests, leaving out a precision's single graph when the pair of
+/// that precision is there (the runtime runs the pair). For a manifest: it and, for one
+/// half of a pair, the other half beside it.
+fn reshade_manifests(
+    model: &Path,
+    precision: Option<Precision>,
+) -> Result<Vec<PathBuf>, BenchError> {
     if model.is_file() {
-        return Ok(vec![model.to_owned()]);
+        let mut files = vec![model.to_owned()];
+        let name = model
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        let partner = if name.contains("decoder") {
+            name.replace("decoder", "encoder")
+        } else {
+            name.replace("encoder", "decoder")
+        };
+        let partner = model.with_file_name(&partner);
+        if partner != model && partner.is_file() {
+            files.insert(0, partner);
+        }
+        return Ok(files);
     }
-    let mut found: Vec<PathBuf> = std::fs::read_dir(model)
+    let mut found: Vec<(PathBuf, manifest::Manifest)> = std::fs::read_dir(model)
         .map_err(io_err(model))?
         .flatten()
         .map(|e| e.path())
         .filter(|p| p.extension().is_some_and(|e| e == "json"))
-        .filter(|p| {
-            manifest::Manifest::load(p).is_ok_and(|m| {
-                m.precision == precision
-                    && matches!(
-                        m.task,
-                        Task::Reshade | Task::ReshadeEncoder | Task::ReshadeDecoder
-                    )
-            })
+        .filter_map(|p| manifest::Manifest::load(&p).ok().map(|m| (p, m)))
+        .filter(|(_, m)| {
+            precision.is_none_or(|p| m.precision == p)
+                && matches!(
+                    m.task,
+                    Task::Reshade | Task::ReshadeEncoder | Task::ReshadeDecoder
+                )
         })
         .collect();
-    found.sort();
-    Ok(found)
+    let split: Vec<Precision> = found
+        .iter()
+        .filter(|(_, m)| m.task == Task::ReshadeDecoder)
+        .map(|(_, m)| m.precision)
+        .collect();
+    found.retain(|(_, m)| m.task != Task::Reshade || !split.contains(&m.precision));
+    let mut paths: Vec<PathBuf> = found.into_iter().map(|(p, _)| p).collect();
+    paths.sort();
+    Ok(paths)
 }
 
 fn padded(v: u32, multiple: usize) -> usize {
@@ -437,24 +562,22 @@ fn padded(v: u32, multiple: usize) -> usize {
 }
 
 /// tract and onnxruntime on the depth models (at the network size the synthetic photo
-/// gets) and on the reshading files (at the first board's padded view size).
+/// gets) and on every precision of the reshading model's files (at the size the first
+/// board's last case reshaded at).
 fn peer_rows(
     args: &BenchArgs,
     ctx: &Context,
-    boards: &[Board],
+    model: &Path,
+    cases: &[Case],
 ) -> Result<Vec<PeerRow>, BenchError> {
     let mut jobs = Vec::new();
     let (dw, dh) = ctx.depth.network_size(args.synthetic.0, args.synthetic.1)?;
     for precision in [Precision::Int8, Precision::Fp32] {
-        let path = Path::new(crate::depth_net::DEFAULT_MODEL_DIR).join(format!(
-            "{}-{precision}.json",
+        let path = source_path(&format!(
+            "{}/{}-{precision}.json",
+            crate::depth_net::DEFAULT_MODEL_DIR,
             crate::depth_net::DEFAULT_MODEL
         ));
-        let path = if path.is_file() {
-            path
-        } else {
-            Path::new(env!("CARGO_MANIFEST_DIR")).join(path)
-        };
         let model = manifest::load_verified(&path)?;
         jobs.push(Job::for_manifest(
             &format!("depth {}", model.manifest.name),
@@ -463,17 +586,21 @@ fn peer_rows(
             dw,
         )?);
     }
-    if let Some(board) = boards.first() {
-        let (vw, vh) = board.view_size();
-        for path in reshade_manifests(&args.model, args.precision)? {
+    if let Some(case) = cases
+        .iter()
+        .rev()
+        .find(|c| Some(&c.board) == cases.first().map(|f| &f.board))
+    {
+        let [ww, wh] = case.work_size;
+        for path in reshade_manifests(model, None)? {
             let model = manifest::load_verified(&path)?;
             let m = model.manifest.size_multiple as usize;
             let label = format!("{} {}", model.manifest.task, model.manifest.name);
             jobs.push(Job::for_manifest(
                 &label,
                 &model,
-                padded(vh, m),
-                padded(vw, m),
+                padded(wh, m),
+                padded(ww, m),
             )?);
         }
     }
@@ -492,60 +619,91 @@ fn peer_rows(
             (None, Vec::new())
         }
     };
-    let mut rows = Vec::new();
-    for job in &jobs {
-        let tract = peer::time_tract(job, args.threads, args.runs.max(3));
-        let ort_time = ort
-            .iter()
-            .find(|(l, _)| *l == job.label)
-            .map(|(_, r)| r.clone());
-        let mut notes = Vec::new();
-        if let Err(e) = &tract {
-            notes.push(format!("tract: {e}"));
-        }
-        match (&ort_time, &version) {
-            (Some(Err(e)), _) => notes.push(format!("onnxruntime: {e}")),
-            (None, _) => notes.push("onnxruntime not run (see log)".into()),
-            (Some(Ok(_)), Some(v)) => notes.push(format!("onnxruntime {v}")),
-            (Some(Ok(_)), None) => {}
-        }
-        rows.push(PeerRow {
-            model: job.label.clone(),
-            shapes: job.shapes_text(),
-            tract: tract.ok(),
-            onnxruntime: ort_time.and_then(Result::ok),
-            note: Some(notes.join("; ")),
-        });
-    }
-    Ok(rows)
+    Ok(jobs
+        .iter()
+        .map(|job| peer_row(args, job, &ort, version.as_deref()))
+        .collect())
 }
 
-const NAIVE_STEM: &str = "reshade-full-naive-fp32";
+fn peer_row(
+    args: &BenchArgs,
+    job: &Job,
+    ort: &[(String, Result<Stat, String>)],
+    version: Option<&str>,
+) -> PeerRow {
+    let tract = peer::time_tract(job, args.threads, args.runs.max(3));
+    let ort_time = ort
+        .iter()
+        .find(|(l, _)| *l == job.label)
+        .map(|(_, r)| r.clone());
+    let mut notes = Vec::new();
+    if let Err(e) = &tract {
+        notes.push(format!("tract: {e}"));
+    }
+    match (&ort_time, version) {
+        (Some(Err(e)), _) => notes.push(format!("onnxruntime: {e}")),
+        (None, _) => notes.push("onnxruntime not run (see log)".into()),
+        (Some(Ok(_)), Some(v)) => notes.push(format!("onnxruntime {v}")),
+        (Some(Ok(_)), None) => {}
+    }
+    PeerRow {
+        model: job.label.clone(),
+        shapes: job.shapes_text(),
+        tract: tract.ok(),
+        onnxruntime: ort_time.and_then(Result::ok),
+        note: Some(notes.join("; ")),
+    }
+}
 
-/// The randomly initialised paper-size network, exported once into the cache.
-fn naive_model(args: &BenchArgs) -> Result<PathBuf, BenchError> {
+/// The shipped architecture's size, for the untrained stand-in.
+const STAND_IN_SIZE: &str = "lite";
+
+/// The untrained stand-in's decoder manifest (its encoder is found beside it).
+fn untrained_model(args: &BenchArgs, precision: Precision) -> Result<PathBuf, BenchError> {
+    let stem = cached_export(args, STAND_IN_SIZE, true, precision)?;
+    Ok(stem.with_file_name(format!(
+        "{}-decoder.json",
+        stem.file_stem().unwrap_or_default().to_string_lossy()
+    )))
+}
+
+/// A randomly initialised network of `size` exported once into the cache by
+/// bench/export_untrained.py; the single graph's manifest.
+fn cached_export(
+    args: &BenchArgs,
+    size: &str,
+    split: bool,
+    precision: Precision,
+) -> Result<PathBuf, BenchError> {
     let dir = args
         .cache
         .clone()
         .unwrap_or_else(|| cache_home().join("bench"));
-    let manifest = dir.join(format!("{NAIVE_STEM}.json"));
-    if manifest.is_file() {
+    let stem = format!("reshade-{size}-untrained-{precision}");
+    let manifest = dir.join(format!("{stem}.json"));
+    let decoder = dir.join(format!("{stem}-decoder.json"));
+    if manifest.is_file() && (!split || decoder.is_file()) {
         return Ok(manifest);
     }
     let py = python(args)?;
-    let exporter = script("export_naive.py");
+    let exporter = script("export_untrained.py");
     log::info!(
-        "exporting the paper-size network to {} (once)",
+        "exporting an untrained {size} network to {} (once)",
         dir.display()
     );
-    let status = std::process::Command::new(&py)
+    let mut command = std::process::Command::new(&py);
+    command
         .arg(&exporter)
         .arg("--out")
         .arg(&dir)
-        .arg("--stem")
-        .arg(NAIVE_STEM)
-        .status()
-        .map_err(io_err(&py))?;
+        .arg("--size")
+        .arg(size)
+        .arg("--precision")
+        .arg(precision.to_string());
+    if split {
+        command.arg("--split");
+    }
+    let status = command.status().map_err(io_err(&py))?;
     if !status.success() || !manifest.is_file() {
         return Err(BenchError::Peer {
             script: exporter,
@@ -563,7 +721,7 @@ fn naive_rows(
     boards: &[Board],
     cases: &[Case],
 ) -> Result<Vec<NaiveRow>, BenchError> {
-    let model = match naive_model(args) {
+    let model = match cached_export(args, "full", false, Precision::Fp32) {
         Ok(path) => manifest::load_verified(&path)?,
         Err(e) => {
             log::warn!("naive configuration not run: {e}");
@@ -576,6 +734,7 @@ fn naive_rows(
                     per_view: None,
                     timed_views: 0,
                     runtime_ms: None,
+                    candidate_ms: None,
                     note: Some(format!("not run: {e}")),
                 })
                 .collect());
@@ -584,31 +743,41 @@ fn naive_rows(
     let m = model.manifest.size_multiple as usize;
     let mut rows = Vec::new();
     for board in boards {
-        let (vw, vh) = board.view_size();
-        let (pw, ph) = (padded(vw, m), padded(vh, m));
+        let Some(runtime) = runtime_reshading(cases, board.name()) else {
+            continue;
+        };
+        let [ww, wh] = runtime.work_size;
+        let (pw, ph) = (padded(ww, m), padded(wh, m));
         let job = Job::for_manifest("naive", &model, ph, pw)?;
         let per_view = peer::time_tract(&job, args.threads, args.naive_views);
-        let runtime = runtime_reshading(cases, board.name());
         rows.push(NaiveRow {
             board: board.name().into(),
             views: board.views(),
             network_size: [pw, ph],
             per_view: per_view.as_ref().ok().copied(),
             timed_views: args.naive_views,
-            runtime_ms: runtime.as_ref().map(|(ms, _)| *ms),
-            note: match (per_view, runtime) {
-                (Err(e), _) => Some(format!("failed: {e}")),
-                (Ok(_), Some((_, photo))) => Some(format!("runtime figure from {photo}")),
-                (Ok(_), None) => None,
-            },
+            runtime_ms: Some(runtime.ms),
+            candidate_ms: runtime.candidate_ms,
+            note: Some(match per_view {
+                Err(e) => format!("failed: {e}"),
+                Ok(_) => format!("runtime figure from {}", runtime.photo),
+            }),
         });
     }
     Ok(rows)
 }
 
+/// The runtime's reshading stage for one board.
+struct RuntimeReshading {
+    ms: f64,
+    candidate_ms: Option<f64>,
+    photo: String,
+    work_size: [u32; 2],
+}
+
 /// Encoder + decoder × views medians for `board`, preferring the synthetic photo's case
-/// (the largest), with the photo it came from.
-fn runtime_reshading(cases: &[Case], board: &str) -> Option<(f64, String)> {
+/// (the largest), with the photo it came from and the size it reshaded at.
+fn runtime_reshading(cases: &[Case], board: &str) -> Option<RuntimeReshading> {
     cases
         .iter()
         .rev()
@@ -616,7 +785,12 @@ fn runtime_reshading(cases: &[Case], board: &str) -> Option<(f64, String)> {
         .find_map(|c| {
             let enc = c.stage("reshade encoder")?.time?;
             let dec = c.stage("reshade decoder × views")?.time?;
-            Some((enc.median_ms + dec.median_ms, c.photo.clone()))
+            Some(RuntimeReshading {
+                ms: enc.median_ms + dec.median_ms,
+                candidate_ms: c.candidate_reshading.map(|s| s.median_ms),
+                photo: c.photo.clone(),
+                work_size: c.work_size,
+            })
         })
 }
 
@@ -666,6 +840,43 @@ mod tests {
         assert_eq!(parse_size("4000x3000"), Ok((4000, 3000)));
         assert!(parse_size("4000").is_err());
         assert!(parse_size("8x8").is_err());
+    }
+
+    fn names(paths: &[PathBuf]) -> Vec<String> {
+        paths
+            .iter()
+            .map(|p| p.file_name().unwrap().to_string_lossy().into_owned())
+            .collect()
+    }
+
+    #[test]
+    fn the_peer_times_the_files_the_runtime_runs() {
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("models/fixtures");
+        // Pairs exist for every precision, so no single graph is timed.
+        let all = names(&reshade_manifests(&dir, None).unwrap());
+        assert_eq!(all.len(), 6, "{all:?}");
+        assert!(all.iter().all(|n| n.contains("coder")), "{all:?}");
+        let fp32 = names(&reshade_manifests(&dir, Some(Precision::Fp32)).unwrap());
+        assert_eq!(
+            fp32,
+            [
+                "reshade-fixture-fp32-decoder.json",
+                "reshade-fixture-fp32-encoder.json"
+            ]
+        );
+        let half = dir.join("reshade-fixture-int8-decoder.json");
+        assert_eq!(
+            names(&reshade_manifests(&half, None).unwrap()),
+            [
+                "reshade-fixture-int8-encoder.json",
+                "reshade-fixture-int8-decoder.json"
+            ]
+        );
+        let single = dir.join("reshade-fixture-int8.json");
+        assert_eq!(
+            names(&reshade_manifests(&single, None).unwrap()),
+            ["reshade-fixture-int8.json"]
+        );
     }
 
     #[test]

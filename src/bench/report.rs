@@ -6,6 +6,8 @@ use std::fmt::Write as _;
 
 use serde::{Deserialize, Serialize};
 
+use super::{CANDIDATE_KEY_VIEWS, CANDIDATE_SCALE};
+
 /// Identifies the JSON layout; `--compare` refuses other formats.
 pub const FORMAT: &str = "reshader-bench/1";
 
@@ -19,7 +21,7 @@ pub const STAGES: &[&str] = &[
     "LDI build + inpainting",
     "reshade encoder",
     "reshade decoder × views",
-    "relocate (LDI render) × views",
+    "LDI render × views",
     "weave table",
     "weave",
     "encode/write",
@@ -94,11 +96,17 @@ pub struct Case {
     pub board: String,
     pub views: usize,
     pub view_size: [u32; 2],
+    /// The size photo and depth were fitted to (reshading and relocation run at it).
+    pub work_size: [u32; 2],
     pub stages: Vec<StageRow>,
     /// Per-run sums of the stages (the median of sums, not the sum of medians).
     pub total: Option<Stat>,
     /// Peak resident memory during this case's runs (None where the kernel cannot reset it).
     pub peak_rss_mib: Option<f64>,
+    /// Encoder + decoder × views with the candidate per-view cost options (not part of
+    /// the total: the runtime does not run it).
+    #[serde(default)]
+    pub candidate_reshading: Option<Stat>,
 }
 
 impl Case {
@@ -141,6 +149,9 @@ pub struct NaiveRow {
     pub timed_views: usize,
     /// Reshading stage of the runtime (encoder + decoder × views) for the same board.
     pub runtime_ms: Option<f64>,
+    /// The same with the candidate per-view cost options.
+    #[serde(default)]
+    pub candidate_ms: Option<f64>,
     pub note: Option<String>,
 }
 
@@ -152,6 +163,11 @@ impl NaiveRow {
     /// How many times cheaper the runtime's reshading is than the naive configuration.
     pub fn saving(&self) -> Option<f64> {
         Some(self.extrapolated_ms()? / self.runtime_ms?)
+    }
+
+    /// The same for the candidate options.
+    pub fn candidate_saving(&self) -> Option<f64> {
+        Some(self.extrapolated_ms()? / self.candidate_ms?)
     }
 }
 
@@ -167,7 +183,8 @@ pub struct Report {
     pub reshade_model: String,
     pub depth_model: String,
     pub cases: Vec<Case>,
-    /// Peak resident memory of the whole process (getrusage ru_maxrss).
+    /// Peak resident memory of the conversions: the largest case's `VmHWM`, which
+    /// includes the loaded models (peer and naive runs come after and do not count).
     pub peak_rss_mib: Option<f64>,
     pub peer: Vec<PeerRow>,
     pub naive: Vec<NaiveRow>,
@@ -255,7 +272,7 @@ impl Report {
         let _ = writeln!(out, "- depth model: {}", self.depth_model);
         let _ = writeln!(
             out,
-            "- peak resident memory of the whole run: {}; wall time {:.0} s\n",
+            "- peak resident memory of the conversions (largest case, models loaded): {}; wall time {:.0} s\n",
             mib(self.peak_rss_mib),
             self.wall_s
         );
@@ -318,19 +335,22 @@ impl Report {
     fn naive_table(&self, out: &mut String) {
         let _ = writeln!(
             out,
-            "## Naive configuration: paper-size network per view at view size, fp32\n\n\
+            "## Naive configuration: paper-size network per view, full working resolution, fp32\n\n\
              The runtime's reshading stage (encoder once + decoder × views, model above) \
-             against running the randomly initialised `full` network once per view; the \
-             naive time is measured on a few views and multiplied by the view count.\n\n\
-             | board | views | network input | naive ms/view | views timed | naive total (extrapolated) ms | runtime reshading ms | saving | note |\n|---|---|---|---|---|---|---|---|---|"
+             against running the randomly initialised `full` network once per view at the \
+             same working size; the naive time is measured on a few views and multiplied \
+             by the view count. The candidate column is the same model with \
+             `--reshade-scale {CANDIDATE_SCALE} --key-views {CANDIDATE_KEY_VIEWS}` (per-view cost options (a)+(b)), \
+             timed in the same run.\n\n\
+             | board | views | network input | naive ms/view | views timed | naive total (extrapolated) ms | runtime reshading ms | saving | candidate ms | candidate saving | note |\n|---|---|---|---|---|---|---|---|---|---|---|"
         );
         if self.naive.is_empty() {
-            let _ = writeln!(out, "| (not run: --no-naive) | | | | | | | | |");
+            let _ = writeln!(out, "| (not run: --no-naive) | | | | | | | | | | |");
         }
         for row in &self.naive {
             let _ = writeln!(
                 out,
-                "| {} | {} | {}x{} | {} | {} | {} | {} | {} | {} |",
+                "| {} | {} | {}x{} | {} | {} | {} | {} | {} | {} | {} | {} |",
                 row.board,
                 row.views,
                 row.network_size[0],
@@ -339,7 +359,10 @@ impl Report {
                 row.timed_views,
                 row.extrapolated_ms().map_or("–".into(), ms),
                 row.runtime_ms.map_or("–".into(), ms),
-                row.saving().map_or("–".into(), |s| format!("{s:.0}×")),
+                row.saving().map_or("–".into(), |s| format!("{s:.1}×")),
+                row.candidate_ms.map_or("–".into(), ms),
+                row.candidate_saving()
+                    .map_or("–".into(), |s| format!("{s:.1}×")),
                 row.note.as_deref().unwrap_or("")
             );
         }
@@ -406,14 +429,16 @@ impl Report {
 fn case_table(case: &Case, out: &mut String) {
     let _ = writeln!(
         out,
-        "## {} ({}x{}) → {} ({} views of {}x{})\n\n| stage | ms median (min–max) | share | what ran |\n|---|---|---|---|",
+        "## {} ({}x{}) → {} ({} views of {}x{}; working size {}x{})\n\n| stage | ms median (min–max) | share | what ran |\n|---|---|---|---|",
         case.photo,
         case.photo_size[0],
         case.photo_size[1],
         case.board,
         case.views,
         case.view_size[0],
-        case.view_size[1]
+        case.view_size[1],
+        case.work_size[0],
+        case.work_size[1]
     );
     let total = case.total.map(|t| t.median_ms);
     for row in &case.stages {

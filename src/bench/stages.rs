@@ -7,18 +7,16 @@ use std::time::Instant;
 use image::RgbImage;
 use interleave::{Blend, Board, Weaver};
 
-use crate::depth::DepthMap;
 use crate::depth_net::{network_depth, StageOptions};
-use crate::photo::{load_rgb8, SrgbImage};
-use crate::relocate::{MeshWarp, Relocator};
+use crate::photo::{Photo, SrgbImage};
+use crate::pipeline::Fitted;
+use crate::relocate::reach_of;
 use crate::reshade::TrainingFrame;
-use crate::views::{robust_focus, Intrinsics, ViewRig};
+use crate::reshade_net::NetReshader;
+use crate::views::{robust_focus, robust_range, ViewCamera, ViewRig};
 
-use super::report::{Case, StageRow};
+use super::report::{Case, StageRow, Stat};
 use super::{io_err, stage_stats, BenchError, Context};
-
-/// Field of view assumed for every photo: the benchmark times, it does not judge geometry.
-const HFOV_DEG: f64 = 45.0;
 
 /// Writes the deterministic synthetic photo (the reshading benchmark's test scene) as a
 /// JPEG, so that decoding it is part of the measurement like for a real photo.
@@ -57,8 +55,11 @@ pub fn run_case(
 ) -> Result<Case, BenchError> {
     let first = run_once(ctx, photo, board)?;
     let mut all = Vec::with_capacity(runs);
+    let mut candidate = Vec::with_capacity(runs);
     for _ in 0..runs {
-        all.push(run_once(ctx, photo, board)?.times);
+        let run = run_once(ctx, photo, board)?;
+        candidate.extend(run.candidate_ms);
+        all.push(run.times);
     }
     let (rows, total) = stage_stats(&all);
     let (vw, vh) = board.view_size();
@@ -76,25 +77,37 @@ pub fn run_case(
         board: board.name().into(),
         views: board.views(),
         view_size: [vw, vh],
+        work_size: first.work_size,
         stages,
         total,
         peak_rss_mib: None,
+        candidate_reshading: Stat::of(&candidate),
     })
 }
 
 struct Run {
     times: RunTimes,
+    /// Reshading with the candidate options, outside `times`.
+    candidate_ms: Option<f64>,
     photo_size: [u32; 2],
     depth_input: (usize, usize),
     work_size: [u32; 2],
 }
 
+/// The photo's colours and depth at view size, with the board's cameras, as `render`
+/// prepares them.
+struct Prepared {
+    fitted: Fitted,
+    cameras: Vec<ViewCamera>,
+    frame: TrainingFrame,
+}
+
 fn run_once(ctx: &Context, photo: &Path, board: &Board) -> Result<Run, BenchError> {
     let mut t = RunTimes::new();
-    let (rgb, image) = timed(&mut t, "decode", || -> Result<_, BenchError> {
-        let rgb = load_rgb8(photo)?;
-        let image = SrgbImage::from_rgb8(&rgb);
-        Ok((rgb, image))
+    let (photo, rgb) = timed(&mut t, "decode", || -> Result<_, BenchError> {
+        let photo = Photo::load(photo, None)?;
+        let rgb = photo.image.to_rgb8();
+        Ok((photo, rgb))
     })?;
     let depth_input = ctx.depth.network_size(rgb.width(), rgb.height())?;
     let started = Instant::now();
@@ -107,27 +120,16 @@ fn run_once(ctx: &Context, photo: &Path, board: &Board) -> Result<Run, BenchErro
     let rest_ms = (started.elapsed().as_secs_f64() * 1e3 - estimate_ms).max(0.0);
     t.push(("depth refinement", rest_ms));
     let (vw, vh) = board.view_size();
-    let fitted = timed(&mut t, "fit to view size", || fit(&image, &depth, vw, vh));
-    let focus = robust_focus(&fitted.depth);
-    let rig = ViewRig::new(board.views(), f64::from(board.view_cone_deg()), focus, 1.0)?;
-    let cameras = rig.cameras(&fitted.reference);
-    let frame = TrainingFrame::for_focus(focus);
-    let training_depth = frame.depth(&fitted.depth);
-    let prepared = timed(&mut t, "reshade encoder", || {
-        ctx.reshader.prepare_photo(&fitted.image, &training_depth)
-    })?;
-    let centres: Vec<[f64; 3]> = cameras.iter().map(|c| frame.camera(c.centre)).collect();
-    let colours = timed(&mut t, "reshade decoder × views", || {
-        prepared.reshade_views(&centres)
-    })?;
-    let warp = MeshWarp::default();
-    let views = timed(&mut t, "relocate (LDI render) × views", || {
-        cameras
-            .iter()
-            .zip(&colours)
-            .map(|(camera, c)| warp.render(c, &fitted.depth, &fitted.source, camera))
-            .collect::<Result<Vec<_>, _>>()
-    })?;
+    let fitted = timed(&mut t, "fit to view size", || {
+        Fitted::new(&photo.image, photo.hfov_deg, &depth, vw, vh)
+    });
+    let prepared = cameras(fitted, board)?;
+    let views = reshade_and_relocate(ctx, &prepared, &mut t)?;
+    let candidate_ms = ctx
+        .candidate
+        .as_ref()
+        .map(|net| time_reshading(net, &prepared))
+        .transpose()?;
     let weaver = timed(&mut t, "weave table", || {
         Weaver::new(board, vw, vh, Blend::Nearest).with_threads(ctx.threads)
     });
@@ -143,38 +145,69 @@ fn run_once(ctx: &Context, photo: &Path, board: &Board) -> Result<Run, BenchErro
     })?;
     Ok(Run {
         times: t,
+        candidate_ms,
         photo_size: [rgb.width(), rgb.height()],
         depth_input,
-        work_size: [fitted.image.width(), fitted.image.height()],
+        work_size: [
+            prepared.fitted.image.width(),
+            prepared.fitted.image.height(),
+        ],
     })
 }
 
-struct Fitted {
-    image: SrgbImage,
-    depth: DepthMap,
-    source: Intrinsics,
-    reference: Intrinsics,
+/// The board's cameras with the focus and parallax budget `render` picks by default.
+fn cameras(fitted: Fitted, board: &Board) -> Result<Prepared, BenchError> {
+    let focus = robust_focus(&fitted.depth);
+    let cone = f64::from(board.view_cone_deg());
+    let depthiness =
+        ViewRig::fitting_depthiness(cone, focus, robust_range(&fitted.depth), &fitted.reference);
+    let rig = ViewRig::new(board.views(), cone, focus, depthiness)?;
+    Ok(Prepared {
+        cameras: rig.cameras(&fitted.reference),
+        frame: TrainingFrame::for_focus(focus),
+        fitted,
+    })
 }
 
-/// Photo and depth shrunk to cover a view (never enlarged), as `render` fits them.
-fn fit(image: &SrgbImage, depth: &DepthMap, vw: u32, vh: u32) -> Fitted {
-    let (pw, ph) = (image.width(), image.height());
-    let cover = (f64::from(vw) / f64::from(pw)).max(f64::from(vh) / f64::from(ph));
-    let (fw, fh) = if cover < 1.0 {
-        (
-            ((f64::from(pw) * cover).ceil() as u32).max(1),
-            ((f64::from(ph) * cover).ceil() as u32).max(1),
-        )
-    } else {
-        (pw, ph)
-    };
-    let source = Intrinsics::from_hfov(fw, fh, HFOV_DEG);
-    Fitted {
-        image: image.resized(fw, fh),
-        depth: depth.resized(fw as usize, fh as usize),
-        source,
-        reference: source.cover(vw, vh),
-    }
+/// The per-photo halves (reshading encoder, relocation build) once, then every view's
+/// reshading and render, with the runtime's relocator.
+fn reshade_and_relocate(
+    ctx: &Context,
+    p: &Prepared,
+    t: &mut RunTimes,
+) -> Result<Vec<SrgbImage>, BenchError> {
+    let fitted = &p.fitted;
+    let relocation = timed(t, "LDI build + inpainting", || {
+        let reach = reach_of(p.cameras.iter().map(|c| c.centre), &fitted.source);
+        ctx.relocator
+            .prepare(&fitted.image, &fitted.depth, &fitted.source, reach)
+    })?;
+    let training_depth = p.frame.depth(&fitted.depth);
+    let prepared = timed(t, "reshade encoder", || {
+        ctx.reshader.prepare_photo(&fitted.image, &training_depth)
+    })?;
+    let centres: Vec<[f64; 3]> = p.cameras.iter().map(|c| p.frame.camera(c.centre)).collect();
+    let colours = timed(t, "reshade decoder × views", || {
+        prepared.reshade_views(&centres)
+    })?;
+    let views = timed(t, "LDI render × views", || {
+        p.cameras
+            .iter()
+            .zip(&colours)
+            .map(|(camera, c)| relocation.render(c, camera))
+            .collect::<Result<Vec<_>, _>>()
+    })?;
+    Ok(views)
+}
+
+/// Encoder and decoder × views of `net` for the prepared photo, in ms.
+fn time_reshading(net: &NetReshader, p: &Prepared) -> Result<f64, BenchError> {
+    let started = Instant::now();
+    let depth = p.frame.depth(&p.fitted.depth);
+    let photo = net.prepare_photo(&p.fitted.image, &depth)?;
+    let centres: Vec<[f64; 3]> = p.cameras.iter().map(|c| p.frame.camera(c.centre)).collect();
+    photo.reshade_views(&centres)?;
+    Ok(started.elapsed().as_secs_f64() * 1e3)
 }
 
 fn detail(ctx: &Context, stage: &str, board: &Board, run: &Run) -> String {
@@ -195,15 +228,19 @@ fn detail(ctx: &Context, stage: &str, board: &Board, run: &Run) -> String {
                 .into()
         }
         "fit to view size" => format!("photo and depth resized to {ww}x{wh}"),
-        "LDI build + inpainting" => "src/ldi has no LDI builder in this build".into(),
+        "LDI build + inpainting" => format!(
+            "once per photo at {ww}x{wh} by the runtime's relocator: {}",
+            ctx.relocator.description()
+        ),
         "reshade encoder" if ctx.reshader.is_split() => format!("once per photo at {ww}x{wh}"),
         "reshade encoder" => {
             "single-graph model: only input preparation here, the whole network runs per view"
                 .into()
         }
         "reshade decoder × views" => format!("{views} views at {ww}x{wh}"),
-        "relocate (LDI render) × views" => {
-            format!("{views} views by MeshWarp (depth-mesh rasterisation), the stand-in until the LDI renderer is built")
+        "LDI render × views" => {
+            let (vw, vh) = board.view_size();
+            format!("{views} views of {vw}x{vh}")
         }
         "weave table" => {
             "Weaver::new: subpixel→view table for the board (once per board and view size)".into()

@@ -679,6 +679,71 @@ mod tests {
         assert!(map.at(0, 0) > 2.0);
     }
 
+    /// `bytes` with the first occurrence of `find` replaced.
+    fn patched(bytes: &[u8], find: &[u8], with: &[u8]) -> Vec<u8> {
+        let at = bytes
+            .windows(find.len())
+            .position(|w| w == find)
+            .expect("pattern present");
+        let mut out = bytes.to_vec();
+        out[at..at + with.len()].copy_from_slice(with);
+        out
+    }
+
+    #[test]
+    fn absurd_sizes_are_refused_before_allocation() {
+        let dir = tempfile::tempdir().unwrap();
+        let map = ramp(4, 3);
+        // An EXR whose data window claims 30000x30000 (3.4 GiB of floats).
+        let exr = map.encode(Path::new("d.exr")).unwrap();
+        let mut window = b"dataWindow\0box2i\0\x10\0\0\0".to_vec();
+        let mut claim = window.clone();
+        window.extend(
+            [0u8; 8]
+                .iter()
+                .chain(&3u32.to_le_bytes())
+                .chain(&2u32.to_le_bytes()),
+        );
+        claim.extend(
+            [0u8; 8]
+                .iter()
+                .chain(&29_999u32.to_le_bytes())
+                .chain(&29_999u32.to_le_bytes()),
+        );
+        let path = write(dir.path(), "huge.exr", &patched(&exr, &window, &claim));
+        let err = read_raw(&path).unwrap_err();
+        assert!(matches!(err, DepthError::TooLarge { .. }), "{err}");
+        assert!(err.to_string().contains("huge.exr"), "{err}");
+        assert!(err.to_string().contains("30000x30000"), "{err}");
+        // A 16-bit PNG claiming 100000x100000.
+        let png = map.encode(Path::new("d.png")).unwrap();
+        let mut ihdr = b"IHDR".to_vec();
+        ihdr.extend(
+            100_000u32
+                .to_be_bytes()
+                .iter()
+                .chain(&100_000u32.to_be_bytes()),
+        );
+        let mut png = patched(&png, b"IHDR", &ihdr);
+        let crc = crc32(&png[12..29]);
+        png[29..33].copy_from_slice(&crc.to_be_bytes());
+        let path = write(dir.path(), "huge.png", &png);
+        let err = read_raw(&path).unwrap_err();
+        assert!(matches!(err, DepthError::Size { .. }), "{err}");
+        assert!(err.to_string().contains("100000x100000"), "{err}");
+    }
+
+    fn crc32(bytes: &[u8]) -> u32 {
+        let mut crc = !0u32;
+        for &b in bytes {
+            crc ^= u32::from(b);
+            for _ in 0..8 {
+                crc = (crc >> 1) ^ (0xEDB8_8320 & (crc & 1).wrapping_neg());
+            }
+        }
+        !crc
+    }
+
     #[test]
     fn eight_bit_png_is_refused() {
         let dir = tempfile::tempdir().unwrap();

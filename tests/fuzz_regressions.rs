@@ -1,0 +1,45 @@
+//! Replays, without cargo-fuzz, every input the fuzz targets once crashed on
+//! (tests/fuzz_regressions/<target>/*) and the committed seeds (fuzz/seeds/<target>/*)
+//! through the same checks the targets run (fuzz/fuzz_targets/checks.rs): each must
+//! return normally now.
+
+#[path = "../fuzz/fuzz_targets/checks.rs"]
+mod checks;
+
+use std::path::Path;
+
+/// Runs every file under `root/<target>/` through its target's check; returns how many.
+fn replay(root: &Path) -> usize {
+    let Ok(targets) = std::fs::read_dir(root) else {
+        return 0;
+    };
+    let mut count = 0;
+    for target in targets.map(Result::unwrap) {
+        let name = target.file_name().to_string_lossy().into_owned();
+        let check = checks::by_name(&name)
+            .unwrap_or_else(|| panic!("{}: no fuzz target {name}", root.display()));
+        for input in std::fs::read_dir(target.path()).unwrap() {
+            let path = input.unwrap().path();
+            let data = std::fs::read(&path).unwrap();
+            let result = std::panic::catch_unwind(|| check(&data));
+            assert!(
+                result.is_ok(),
+                "{} crashes its target again",
+                path.display()
+            );
+            count += 1;
+        }
+    }
+    count
+}
+
+#[test]
+fn crash_inputs_found_by_fuzzing_stay_fixed() {
+    replay(&Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fuzz_regressions"));
+}
+
+#[test]
+fn seed_corpora_pass_their_targets() {
+    let count = replay(&Path::new(env!("CARGO_MANIFEST_DIR")).join("fuzz/seeds"));
+    assert!(count >= 30, "only {count} seeds");
+}

@@ -25,9 +25,9 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use crate::depth::{read_raw, DepthMap};
-use crate::ldi::{view_reach, BandColours, Ldi, LdiConfig};
+use crate::ldi::{view_reach, BandColours, Border, Ldi, LdiConfig};
 use crate::photo::SrgbImage;
-use crate::relocate::{MeshWarp, RelocateError, Relocator};
+use crate::relocate::{BorderArg, MeshWarp, RelocateError, Relocator};
 use crate::views::{Intrinsics, ViewCamera};
 
 /// Images per row of a contact sheet.
@@ -84,6 +84,9 @@ pub struct EvalArgs {
     pub exposure: f32,
     #[arg(long, default_value_t = 2.2)]
     pub gamma: f32,
+    /// What the LDI shows beyond the photo's borders (as `render --border`).
+    #[arg(long, value_enum, default_value_t = BorderArg::Extend)]
+    pub border: BorderArg,
     /// Also write the per-example numbers as JSON here.
     #[arg(long)]
     pub json: Option<PathBuf>,
@@ -141,7 +144,7 @@ pub fn run(args: &EvalArgs) -> Result<Vec<ExampleReport>, EvalError> {
     let mut reports = Vec::new();
     for dir in &dirs {
         let example = load_example(dir, args.exposure, args.gamma)?;
-        let (report, sheet) = evaluate(&example)?;
+        let (report, sheet) = evaluate(&example, args.border.into())?;
         log::info!("{}: {:?}", report.id, report.scores);
         if let Some(out) = &args.sheets {
             write_sheet(out, &report.id, &sheet)?;
@@ -277,7 +280,7 @@ fn load_hdr(path: &Path, exposure: f32, gamma: f32) -> Result<SrgbImage, EvalErr
 }
 
 /// Scores every method on one example; also returns the relocation-alone images for a sheet.
-fn evaluate(ex: &Example) -> Result<(ExampleReport, Vec<SrgbImage>), EvalError> {
+fn evaluate(ex: &Example, border: Border) -> Result<(ExampleReport, Vec<SrgbImage>), EvalError> {
     let fail = |source| EvalError::Relocate {
         id: ex.id.clone(),
         source,
@@ -286,7 +289,10 @@ fn evaluate(ex: &Example) -> Result<(ExampleReport, Vec<SrgbImage>), EvalError> 
         centre: ex.offset,
         intrinsics: ex.source,
     };
-    let config = LdiConfig::default();
+    let config = LdiConfig {
+        border,
+        ..LdiConfig::default()
+    };
     let start = Instant::now();
     let ldi = Ldi::build(
         &ex.input,
@@ -503,10 +509,11 @@ fn write_sheet(dir: &Path, id: &str, images: &[SrgbImage]) -> Result<(), EvalErr
 /// The Table-1-style summary: mean PSNR / SSIM per method over all examples.
 pub fn table(reports: &[ExampleReport], args: &EvalArgs) -> String {
     let mut out = format!(
-        "{} examples, tone mapping x{} gamma {}; PSNR dB / SSIM against the ground-truth novel view\n\n",
+        "{} examples, tone mapping x{} gamma {}, LDI border {:?}; PSNR dB / SSIM against the ground-truth novel view\n\n",
         reports.len(),
         args.exposure,
-        args.gamma
+        args.gamma,
+        args.border
     );
     out.push_str(
         "| method | colours | all | visible in input | disoccluded |\n|---|---|---|---|---|\n",

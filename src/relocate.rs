@@ -115,15 +115,21 @@ pub enum BorderArg {
     Crop,
 }
 
+impl From<BorderArg> for Border {
+    fn from(b: BorderArg) -> Self {
+        match b {
+            BorderArg::Extend => Border::Extend,
+            BorderArg::Crop => Border::Crop,
+        }
+    }
+}
+
 impl RelocateArgs {
     /// The one constructor of the runtime's relocator (CLI, gallery, benchmark).
     pub fn build(&self) -> Box<dyn Relocator> {
         match self.kind {
             RelocateKind::Ldi => Box::new(LdiRelocator::new(LdiConfig {
-                border: match self.border {
-                    BorderArg::Extend => Border::Extend,
-                    BorderArg::Crop => Border::Crop,
-                },
+                border: self.border.into(),
                 ..LdiConfig::default()
             })),
             RelocateKind::Mesh => Box::new(MeshWarp::default()),

@@ -1,34 +1,13 @@
-//! Measurement harnesses for the LDI, ignored by default (they read the rendered
-//! dataset or allocate a 12-megapixel LDI). Run with
+//! Timing and memory harnesses for the LDI, ignored by default (one allocates a
+//! 12-megapixel LDI). Table 1 is `reshader eval-relocation`. Run with
 //! `cargo test -j 2 --test ldi_eval -- --ignored --nocapture --test-threads 1`.
 
-use std::path::PathBuf;
 use std::time::Instant;
 
 use reshader::depth::DepthMap;
-use reshader::eval_relocation::{run, EvalArgs};
 use reshader::ldi::{Ldi, LdiConfig};
 use reshader::photo::SrgbImage;
 use reshader::views::{Intrinsics, ViewCamera};
-
-/// Table 1 on the rendered validation set (RESHADER_EVAL_DATA, default
-/// /work/data/reshade/val); contact sheets go to RESHADER_EVAL_SHEETS if set.
-#[test]
-#[ignore]
-fn table_1_on_rendered_scenes() {
-    let data = std::env::var_os("RESHADER_EVAL_DATA")
-        .map_or_else(|| PathBuf::from("/work/data/reshade/val"), PathBuf::from);
-    let args = EvalArgs {
-        data,
-        limit: None,
-        exposure: 5.5,
-        gamma: 2.2,
-        json: std::env::var_os("RESHADER_EVAL_JSON").map(PathBuf::from),
-        sheets: std::env::var_os("RESHADER_EVAL_SHEETS").map(PathBuf::from),
-    };
-    let reports = run(&args).unwrap();
-    assert!(!reports.is_empty());
-}
 
 fn peak_rss_mb() -> f64 {
     let status = std::fs::read_to_string("/proc/self/status").unwrap_or_default();

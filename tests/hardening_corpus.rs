@@ -92,12 +92,12 @@ fn flat_block_jpeg(w: u16, h: u16, channels: u8, progressive: bool) -> Vec<u8> {
     let mut previous = vec![0i32; usize::from(channels)];
     for by in 0..h / 8 {
         for bx in 0..w / 8 {
-            for c in 0..usize::from(channels) {
+            for (c, previous) in previous.iter_mut().enumerate() {
                 let level = (i32::from(bx) * 50 + i32::from(by) * 90 + c as i32 * 70) % 256;
                 // With unit quantisation a flat block's DC is 8 × (level − 128).
                 let dc = 8 * (level - 128);
-                let diff = dc - previous[c];
-                previous[c] = dc;
+                let diff = dc - *previous;
+                *previous = dc;
                 let category = 32 - diff.unsigned_abs().leading_zeros();
                 bits.put(category, 4);
                 let extra = if diff < 0 { diff - 1 } else { diff };

@@ -170,6 +170,53 @@ fn embedded_depth_is_used_instead_of_the_network() {
 }
 
 #[test]
+fn unreadable_embedded_depth_falls_back_to_the_network_and_says_why() {
+    let dir = tempfile::tempdir().unwrap();
+    let (png, _) = depth_support::depth_png(20, 15);
+    let b64 = depth_support::base64(&png).replacen('A', "*", 1);
+    let photo = dir.path().join("broken.jpg");
+    std::fs::write(&photo, depth_support::gdepth_jpeg(&b64, "RangeLinear", 700)).unwrap();
+    let (record, err) = render_ok(
+        dir.path(),
+        &photo.display().to_string(),
+        &["--depth-model", &fixture_model(), "--only", "panel"],
+    );
+    let depth = &record["inputs"]["depth"];
+    assert_eq!(depth["source"], "network", "{depth}");
+    let why = depth["embedded_error"].as_str().unwrap();
+    assert!(
+        why.contains("broken.jpg") && why.contains("base64"),
+        "{why}"
+    );
+    assert!(
+        err.contains("estimating depth with the network instead"),
+        "{err}"
+    );
+
+    let out = dir.path().join("strict").display().to_string();
+    let board = tiny_board();
+    let photo = photo.display().to_string();
+    let strict = run(&[
+        "render", &photo, "--depth", "embedded", "--board", &board, "--out", &out,
+    ]);
+    assert_eq!(strict.status.code(), Some(1));
+    assert!(
+        stderr(&strict).contains("broken.jpg"),
+        "{}",
+        stderr(&strict)
+    );
+    assert!(!Path::new(&out).exists());
+}
+
+#[test]
+fn corrupt_photo_without_a_depth_file_fails_before_any_depth_work() {
+    let dir = tempfile::tempdir().unwrap();
+    let bad = dir.path().join("bad.jpg");
+    std::fs::write(&bad, b"\xff\xd8\xff\xe0 not really a jpeg").unwrap();
+    assert_failed_cleanly(dir.path(), &[], &bad.display().to_string(), &["bad.jpg"]);
+}
+
+#[test]
 fn depth_file_is_recorded_with_its_sha256() {
     let dir = tempfile::tempdir().unwrap();
     let (photo, depth_file) = spine_support::write_scene(dir.path());

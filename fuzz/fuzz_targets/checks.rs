@@ -146,6 +146,11 @@ pub fn manifest(data: &[u8]) {
 /// The model loader on corrupt ONNX files: protobuf decoding, fp16 widening, name
 /// checks, shape analysis and optimisation in tract, as `--depth-model` runs them.
 pub fn onnx_model(data: &[u8]) {
+    // The engine turns panics inside tract into errors, but libFuzzer's panic hook
+    // aborts at the panic itself: back to the default hook, which only prints. A panic
+    // that escapes the engine still fails the run.
+    static DEFAULT_HOOK: Once = Once::new();
+    DEFAULT_HOOK.call_once(|| drop(std::panic::take_hook()));
     let engine = TractEngine::new(1);
     // Odd lengths take the fp16 path, which rewrites the graph's tensors before loading.
     let precision = if data.len() % 2 == 0 {

@@ -45,10 +45,13 @@ impl Engine for TractEngine {
         shapes: &[(&str, Vec<usize>)],
         outputs: &[&str],
     ) -> Result<Arc<dyn Plan>, EngineError> {
-        let (typed, inputs, order) = optimized(model, shapes, outputs)?;
-        let runnable = typed
-            .into_runnable()
-            .map_err(|e| load_error(model.path, e))?;
+        let (runnable, inputs, order) = guarded(model.path, || {
+            let (typed, inputs, order) = optimized(model, shapes, outputs)?;
+            let runnable = typed
+                .into_runnable()
+                .map_err(|e| load_error(model.path, e))?;
+            Ok((runnable, inputs, order))
+        })?;
         Ok(Arc::new(TractPlan {
             path: model.path.to_owned(),
             inputs,
@@ -103,6 +106,27 @@ impl TractEngine {
         sorted.sort_by(|a, b| b.1.total_cmp(&a.1));
         Ok(sorted)
     }
+}
+
+/// Runs a loading step, turning a panic inside tract into a load error: tract panics on
+/// some malformed graphs (fuzzing found a graph output that no node produces), and a
+/// corrupt model file must give an error naming it, not abort the run.
+fn guarded<T>(
+    path: &Path,
+    step: impl FnOnce() -> Result<T, EngineError>,
+) -> Result<T, EngineError> {
+    std::panic::catch_unwind(std::panic::AssertUnwindSafe(step)).unwrap_or_else(|panic| {
+        let reason = panic
+            .downcast_ref::<&str>()
+            .map(|s| s.to_string())
+            .or_else(|| panic.downcast_ref::<String>().cloned())
+            .unwrap_or_else(|| "unknown".into());
+        Err(EngineError::Load {
+            engine: NAME,
+            path: path.to_owned(),
+            message: format!("the graph is malformed (tract failed: {reason})"),
+        })
+    })
 }
 
 fn load_error(path: &Path, e: TractError) -> EngineError {

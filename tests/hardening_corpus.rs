@@ -140,6 +140,15 @@ fn huge_exif_jpeg(w: u32, h: u32) -> Vec<u8> {
     jpeg
 }
 
+/// A JPEG whose frame header claims `w`×`h` though its data is for 16x8.
+fn jpeg_claiming(w: u16, h: u16) -> Vec<u8> {
+    let mut jpeg = flat_block_jpeg(16, 8, 3, false);
+    let sof = jpeg.windows(2).position(|m| m == [0xFF, 0xC0]).unwrap();
+    jpeg[sof + 5..sof + 7].copy_from_slice(&h.to_be_bytes());
+    jpeg[sof + 7..sof + 9].copy_from_slice(&w.to_be_bytes());
+    jpeg
+}
+
 /// What one photo of the corpus is, and what converting it must give.
 struct Case {
     name: &'static str,
@@ -193,6 +202,17 @@ fn corpus() -> Vec<Case> {
             None,
         ),
         case("huge_exif.jpg", huge_exif_jpeg(32, 16), None),
+        case(
+            "huge_frame.jpg",
+            jpeg_claiming(60_000, 60_000),
+            Some("60000x60000"),
+        ),
+        // Within the side limit, but 16000² pixels exceed a quarter of --max-memory.
+        case(
+            "over_budget.jpg",
+            jpeg_claiming(16_000, 16_000),
+            Some("--max-memory"),
+        ),
         Case {
             name: "huge_header.png",
             bytes: png_claiming(100_000, 100_000),

@@ -4,6 +4,11 @@
 //! Capture (with decoding) runs on its own thread and leaves only its newest frame in a
 //! one-slot mailbox; the processing loop always takes the newest, so a slow stage costs
 //! frame rate, never latency.
+//!
+//! With `--depth network` the depth network runs on the working frame and each view is
+//! relocated with that depth; a depth map is reused for later frames while it is younger
+//! than `--depth-max-age-ms`, since the network is the slowest stage and the scene in
+//! front of a fixed camera changes slowly.
 
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -15,7 +20,13 @@ use image::RgbImage;
 use interleave::{Blend, Board, Weaver};
 
 use super::{CameraRequest, CaptureError, Frame, FrameSource, PixelFormat};
+use crate::depth::DepthMap;
+use crate::depth_net::cli::EstimateArgs;
+use crate::depth_net::{self, DepthNet, DepthNetError, DepthSource, StageOptions};
 use crate::display::{DisplayError, FrameSink};
+use crate::photo::SrgbImage;
+use crate::relocate::{self, RelocateArgs, RelocateError, Relocator};
+use crate::views::{robust_focus, robust_range, Intrinsics, ViewError, ViewRig};
 
 #[derive(Debug, thiserror::Error)]
 pub enum LiveError {
@@ -31,6 +42,23 @@ pub enum LiveError {
     NoBoard,
     #[error("cannot install the SIGINT/SIGTERM handler: {0}")]
     Signal(std::io::Error),
+    #[error(transparent)]
+    DepthNet(#[from] DepthNetError),
+    #[error(transparent)]
+    View(#[from] ViewError),
+    #[error(transparent)]
+    Relocate(#[from] RelocateError),
+    #[error("{0}")]
+    Options(String),
+}
+
+/// Where the views' depth comes from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum LiveDepthMode {
+    /// No depth: every view is the camera frame (the panel shows it flat).
+    Off,
+    /// The depth network on the working frame; each view is relocated with it.
+    Network,
 }
 
 #[derive(clap::Args, Debug)]
@@ -73,6 +101,20 @@ pub struct LiveArgs {
     /// as fast as the pipeline takes them.
     #[arg(long)]
     pub realtime: bool,
+    /// Depth for the views: off (flat: every view is the camera frame) or network.
+    #[arg(long, value_enum, default_value_t = LiveDepthMode::Off)]
+    pub depth: LiveDepthMode,
+    /// Reuse a frame's depth for later frames until it is this many milliseconds old
+    /// (0: run the depth network on every frame).
+    #[arg(long, default_value_t = 500)]
+    pub depth_max_age_ms: u64,
+    /// Horizontal field of view of the camera in degrees, for relocating the views.
+    #[arg(long, default_value_t = crate::photo::DEFAULT_HFOV_DEG)]
+    pub fov: f64,
+    #[command(flatten)]
+    pub relocate: RelocateArgs,
+    #[command(flatten)]
+    pub estimate: EstimateArgs,
 }
 
 pub const LIVE_ABOUT: &str = "\
@@ -81,12 +123,16 @@ working resolution → weave for the board → display. Frames are dropped, neve
 when a stage is slower than the camera. At -v the achieved fps and per-stage times are
 logged once a second; a summary is printed at the end.
 
-Until a depth model ships, all views are the camera frame itself (the panel shows it
-flat); depth and reshading slot in between capture and weaving.
+By default (--depth off) all views are the camera frame itself (the panel shows it flat).
+With --depth network the depth network runs on the working frame (its depth reused while
+younger than --depth-max-age-ms) and every view is relocated with it (--relocate);
+reshading is not run live yet.
 
 Examples:
   reshader live --camera /dev/video0 --list-formats
   reshader live --camera /dev/video0 --board looking-glass-portrait --display fb:/dev/fb0 -v
+  reshader live --camera /dev/video0 --board looking-glass-portrait --depth network \\
+      --work-size 210x280 --depth-max-age-ms 1000 -v
   reshader live --camera recording.rshfrm --board looking-glass-portrait --frames 300 -v";
 
 fn parse_size(s: &str) -> Result<(u32, u32), String> {
@@ -112,6 +158,7 @@ pub fn run_live(args: &LiveArgs) -> Result<(), LiveError> {
     }
     let board_name = args.board.as_deref().ok_or(LiveError::NoBoard)?;
     let board = crate::pipeline::load_board(board_name, args.calibration.as_deref())?;
+    let depth = live_depth(args)?;
     let request = CameraRequest {
         format: args.format,
         size: args.size,
@@ -124,6 +171,7 @@ pub fn run_live(args: &LiveArgs) -> Result<(), LiveError> {
     let opts = LiveOptions {
         work_size: args.work_size,
         max_frames: args.frames,
+        depth,
     };
     let summary = run_pipeline(source, sink, &board, &opts, &stop)?;
     eprintln!("{summary}");
@@ -137,14 +185,51 @@ pub fn run_live(args: &LiveArgs) -> Result<(), LiveError> {
     Ok(())
 }
 
-#[derive(Clone, Debug, Default)]
+/// The depth stage of `--depth network`, loaded before capture starts so that a bad model
+/// fails before the camera is opened.
+fn live_depth(args: &LiveArgs) -> Result<Option<LiveDepth>, LiveError> {
+    if args.depth == LiveDepthMode::Off {
+        return Ok(None);
+    }
+    if !(args.fov > 0.0 && args.fov < 180.0) {
+        return Err(LiveError::Options(format!(
+            "--fov {} must be between 0 and 180 degrees",
+            args.fov
+        )));
+    }
+    let estimator = args
+        .estimate
+        .estimator(DepthSource::Network)
+        .map_err(LiveError::Options)?;
+    Ok(Some(LiveDepth {
+        net: estimator.net()?,
+        opts: *estimator.options(),
+        max_age: Duration::from_millis(args.depth_max_age_ms),
+        relocator: args.relocate.build(),
+        hfov_deg: args.fov,
+    }))
+}
+
+#[derive(Default)]
 pub struct LiveOptions {
     pub work_size: Option<(u32, u32)>,
     pub max_frames: Option<u64>,
+    /// None: flat views.
+    pub depth: Option<LiveDepth>,
+}
+
+/// Depth and relocation of live frames.
+pub struct LiveDepth {
+    pub net: Arc<DepthNet>,
+    pub opts: StageOptions,
+    /// A depth map younger than this is reused for the next frame.
+    pub max_age: Duration,
+    pub relocator: Box<dyn Relocator>,
+    pub hfov_deg: f64,
 }
 
 /// Stage names in pipeline order, as reported.
-pub const STAGES: [&str; 5] = ["capture", "resize", "views", "weave", "display"];
+pub const STAGES: [&str; 6] = ["capture", "resize", "depth", "views", "weave", "display"];
 
 /// What a run achieved.
 #[derive(Clone, Debug, Default)]
@@ -154,11 +239,13 @@ pub struct LiveSummary {
     pub dropped: u64,
     /// Frames whose bytes could not be decoded.
     pub bad_frames: u64,
+    /// Frames the depth network ran on (the others reused a fresh depth map).
+    pub depth_runs: u64,
     pub elapsed: Duration,
     pub work_size: (u32, u32),
     pub panel_size: (u32, u32),
     /// Total time per stage, in [`STAGES`] order.
-    pub stage_time: [Duration; 5],
+    pub stage_time: [Duration; 6],
 }
 
 impl LiveSummary {
@@ -169,7 +256,7 @@ impl LiveSummary {
         self.frames as f64 / self.elapsed.as_secs_f64()
     }
 
-    pub fn mean_stage_ms(&self) -> [f64; 5] {
+    pub fn mean_stage_ms(&self) -> [f64; 6] {
         let n = self.frames.max(1) as f64;
         self.stage_time.map(|t| t.as_secs_f64() * 1e3 / n)
     }
@@ -188,13 +275,14 @@ impl std::fmt::Display for LiveSummary {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         write!(
             f,
-            "live: {} frames in {:.2} s = {:.1} fps ({} dropped, {} undecodable); views \
-             {}x{}, panel {}x{}; mean ms per frame: {}",
+            "live: {} frames in {:.2} s = {:.1} fps ({} dropped, {} undecodable, depth \
+             estimated on {}); views {}x{}, panel {}x{}; mean ms per frame: {}",
             self.frames,
             self.elapsed.as_secs_f64(),
             self.fps(),
             self.dropped,
             self.bad_frames,
+            self.depth_runs,
             self.work_size.0,
             self.work_size.1,
             self.panel_size.0,
@@ -215,9 +303,17 @@ pub fn run_pipeline(
     let work_size = opts.work_size.unwrap_or_else(|| board.view_size());
     log::info!("live: source {}", source.describe());
     log::info!("live: display {}", sink.describe());
+    let depth_note = match &opts.depth {
+        Some(d) => format!(
+            "depth {} (reused for {} ms), relocation {}",
+            d.net.manifest().name,
+            d.max_age.as_millis(),
+            d.relocator.description()
+        ),
+        None => "no depth (--depth off), so every view is the camera frame".into(),
+    };
     log::info!(
-        "live: {} views of {}x{} woven for {} ({}x{}); no depth model yet, so every view is \
-         the camera frame",
+        "live: {} views of {}x{} woven for {} ({}x{}); {depth_note}",
         board.views(),
         work_size.0,
         work_size.1,
@@ -229,6 +325,11 @@ pub fn run_pipeline(
     let mailbox = Arc::new(Mailbox::default());
     let capture = spawn_capture(source, Arc::clone(&mailbox), Arc::clone(stop));
     let mut run = Run::new(work_size, weaver.panel_size());
+    run.depth = opts.depth.as_ref().map(|d| DepthState {
+        live: d,
+        cone: f64::from(board.view_cone_deg()),
+        latest: None,
+    });
     let mut panel = RgbImage::new(0, 0);
     let result = loop {
         if stop.load(Ordering::SeqCst) || opts.max_frames.is_some_and(|m| run.total.frames >= m) {
@@ -254,15 +355,38 @@ pub fn run_pipeline(
 }
 
 /// The processing side's clock and counters.
-struct Run {
+struct Run<'a> {
     views: Vec<RgbImage>,
+    depth: Option<DepthState<'a>>,
     started: Instant,
     total: LiveSummary,
     window: LiveSummary,
     window_start: Instant,
 }
 
-impl Run {
+/// The depth stage's settings and the last depth map with its age.
+struct DepthState<'a> {
+    live: &'a LiveDepth,
+    cone: f64,
+    latest: Option<(DepthMap, Instant)>,
+}
+
+impl DepthState<'_> {
+    /// Estimates depth for `work` unless the last map is still fresh; says whether it ran.
+    fn refresh(&mut self, work: &RgbImage) -> Result<bool, LiveError> {
+        let stale = self
+            .latest
+            .as_ref()
+            .is_none_or(|(_, at)| at.elapsed() > self.live.max_age);
+        if stale {
+            let (map, _) = depth_net::network_depth(&self.live.net, work, &self.live.opts)?;
+            self.latest = Some((map, Instant::now()));
+        }
+        Ok(stale)
+    }
+}
+
+impl Run<'_> {
     fn new(work_size: (u32, u32), panel_size: (u32, u32)) -> Self {
         let total = LiveSummary {
             work_size,
@@ -271,6 +395,7 @@ impl Run {
         };
         Self {
             views: Vec::new(),
+            depth: None,
             started: Instant::now(),
             window: total.clone(),
             total,
@@ -286,22 +411,36 @@ impl Run {
         sink: &mut dyn FrameSink,
     ) -> Result<(), LiveError> {
         let (w, h) = self.total.work_size;
-        let mut times = [Duration::ZERO; 5];
+        let mut times = [Duration::ZERO; 6];
         times[0] = frame.decode_time;
         let t = Instant::now();
         let work = cover_resize(&frame.image, w, h);
         times[1] = t.elapsed();
-        let t = Instant::now();
-        flat_views(&work, weaver.views(), &mut self.views);
-        times[2] = t.elapsed();
+        let mut estimated = false;
+        match self.depth.as_mut() {
+            Some(state) => {
+                let t = Instant::now();
+                estimated = state.refresh(&work)?;
+                times[2] = t.elapsed();
+                let t = Instant::now();
+                self.views = relocated_views(&work, state, weaver.views())?;
+                times[3] = t.elapsed();
+            }
+            None => {
+                let t = Instant::now();
+                flat_views(&work, weaver.views(), &mut self.views);
+                times[3] = t.elapsed();
+            }
+        }
         let t = Instant::now();
         weaver.weave_into(&self.views, panel)?;
-        times[3] = t.elapsed();
+        times[4] = t.elapsed();
         let t = Instant::now();
         sink.show(panel)?;
-        times[4] = t.elapsed();
+        times[5] = t.elapsed();
         for summary in [&mut self.total, &mut self.window] {
             summary.frames += 1;
+            summary.depth_runs += u64::from(estimated);
             for (acc, t) in summary.stage_time.iter_mut().zip(times) {
                 *acc += t;
             }
@@ -343,6 +482,36 @@ fn flat_views(work: &RgbImage, count: usize, views: &mut Vec<RgbImage>) {
             *view = work.clone();
         }
     }
+}
+
+/// The views of one frame seen from the board's cameras, relocated with its depth: the
+/// same rig as `render` (zero-parallax plane at the robust middle depth, baseline fitted
+/// to the parallax budget), recomputed per frame because the depth changes.
+fn relocated_views(
+    work: &RgbImage,
+    state: &DepthState,
+    count: usize,
+) -> Result<Vec<RgbImage>, LiveError> {
+    let (depth, _) = state
+        .latest
+        .as_ref()
+        .expect("depth refreshed before the views");
+    let image = SrgbImage::from_rgb8(work);
+    let source = Intrinsics::from_hfov(work.width(), work.height(), state.live.hfov_deg);
+    let reference = source.cover(work.width(), work.height());
+    let focus = robust_focus(depth);
+    let depthiness =
+        ViewRig::fitting_depthiness(state.cone, focus, robust_range(depth), &reference);
+    let cameras = ViewRig::new(count, state.cone, focus, depthiness)?.cameras(&reference);
+    let reach = relocate::reach_of(cameras.iter().map(|c| c.centre), &source);
+    let prepared = state
+        .live
+        .relocator
+        .prepare(&image, depth, &source, reach)?;
+    cameras
+        .iter()
+        .map(|camera| Ok(prepared.render(&image, camera)?.to_rgb8()))
+        .collect()
 }
 
 /// Scales `image` to cover `w`×`h` and crops the centre, keeping its aspect.

@@ -139,11 +139,19 @@ fn compare_reports_the_change_per_stage() {
         case("looking-glass-portrait", 1.0, false),
         case("looking-glass-go", 1.0, true),
     ]);
-    let now = report(vec![
+    let mut now = report(vec![
         case("looking-glass-portrait", 2.0, true),
         case("generic-8view", 1.0, true),
     ]);
+    assert!(!now.compare(&before).contains("differs"));
+    now.depth_model = "tiefenrausch-fp32".into();
     let text = now.compare(&before);
+    assert!(
+        text.contains(
+            "| (setup) | depth model differs | tiefenrausch-int8 | tiefenrausch-fp32 | |"
+        ),
+        "{text}"
+    );
     assert!(
         text.contains(
             "| photo.jpg / looking-glass-portrait | decode | 10.0 | 20.0 | +100.0% (2.00×) |"

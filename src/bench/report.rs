@@ -384,6 +384,18 @@ impl Report {
             self.profile,
             load_text(self.load_average),
         );
+        for (what, old, new) in [
+            ("depth model", &previous.depth_model, &self.depth_model),
+            (
+                "reshading model",
+                &previous.reshade_model,
+                &self.reshade_model,
+            ),
+        ] {
+            if old != new {
+                let _ = writeln!(out, "| (setup) | {what} differs | {old} | {new} | |");
+            }
+        }
         for case in &self.cases {
             let before = previous.cases.iter().find(|c| c.key() == case.key());
             let Some(before) = before else {

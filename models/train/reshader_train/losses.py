@@ -1,5 +1,7 @@
 """The paper's training loss (eq. 1-4): L = 0.1 L1 + 0.01 ||phi(I~) - phi(I)||^2 + 1 ||G - G~||^2.
 
+The pixel term is L1 as in the paper, or optionally the mean squared error (`pixel="l2"`).
+
 Both images are multiplied by the validity mask before every term, as in the paper.
 """
 
@@ -16,29 +18,34 @@ from .features import FeatureNet
 
 @dataclass(frozen=True)
 class LossWeights:
-    l1: float = 0.1
+    pixel: float = 0.1
     vgg: float = 0.01
     style: float = 1.0
 
     @classmethod
     def parse(cls, text: str) -> LossWeights:
-        """'L1,VGG,STYLE', e.g. '0.1,0.01,1' (the paper's) or '0.1,0,0' (pixels only)."""
+        """'PIXEL,VGG,STYLE', e.g. '0.1,0.01,1' (the paper's) or '0.1,0,0' (pixels only)."""
         try:
-            l1, vgg, style = (float(v) for v in text.split(","))
+            pixel, vgg, style = (float(v) for v in text.split(","))
         except ValueError:
             raise ValueError(
-                f"--loss-weights {text!r}: expected three numbers L1,VGG,STYLE"
+                f"--loss-weights {text!r}: expected three numbers PIXEL,VGG,STYLE"
             ) from None
-        if min(l1, vgg, style) < 0 or l1 + vgg + style == 0:
+        if min(pixel, vgg, style) < 0 or pixel + vgg + style == 0:
             raise ValueError(f"--loss-weights {text!r}: weights must be >= 0, not all zero")
-        return cls(l1, vgg, style)
+        return cls(pixel, vgg, style)
 
     def __str__(self) -> str:
-        return f"{self.l1:g},{self.vgg:g},{self.style:g}"
+        return f"{self.pixel:g},{self.vgg:g},{self.style:g}"
 
     @property
     def needs_features(self) -> bool:
         return self.vgg > 0 or self.style > 0
+
+
+# L1 is the paper's. With Monte-Carlo noise in the targets its optimum at a noisy pixel is
+# the median, i.e. no change; L2's is the mean, which keeps view-dependent brightness changes.
+PIXEL_LOSSES = {"l1": F.l1_loss, "l2": F.mse_loss}
 
 
 def gram(features: torch.Tensor) -> torch.Tensor:
@@ -65,8 +72,12 @@ class ReshadeLoss(nn.Module):
         feature_net: FeatureNet | None,
         weights: LossWeights | None = None,
         feature_dtype: torch.dtype = torch.float32,
+        pixel: str = "l1",
     ) -> None:
         super().__init__()
+        if pixel not in PIXEL_LOSSES:
+            raise ValueError(f"pixel loss {pixel!r}: expected one of {sorted(PIXEL_LOSSES)}")
+        self.pixel = pixel
         self.weights = weights or LossWeights()
         if feature_net is None and self.weights.needs_features:
             raise ValueError(
@@ -91,7 +102,7 @@ class ReshadeLoss(nn.Module):
     ) -> tuple[torch.Tensor, dict[str, float]]:
         pred = pred * mask
         target = target * mask
-        l1 = F.l1_loss(pred, target)
+        pixel = PIXEL_LOSSES[self.pixel](pred, target)
         w = self.weights
         if self.feature_net is None:
             vgg = style = torch.zeros((), device=pred.device)
@@ -101,10 +112,10 @@ class ReshadeLoss(nn.Module):
                 ft = self.features(target)
             vgg = F.mse_loss(fp, ft)
             style = F.mse_loss(gram(fp), gram(ft))
-        total = w.l1 * l1 + w.vgg * vgg + w.style * style
+        total = w.pixel * pixel + w.vgg * vgg + w.style * style
         parts = {
             "loss": float(total.detach()),
-            "l1": float(l1.detach()),
+            "pixel": float(pixel.detach()),
             "vgg": float(vgg.detach()),
             "style": float(style.detach()),
         }
@@ -117,12 +128,13 @@ def make_loss(
     vgg_weights: str | None,
     precision: str,
     device: torch.device,
+    pixel: str = "l1",
 ) -> ReshadeLoss:
     """The training criterion as the command line asks for it (train and quantize share it)."""
     if not weights.needs_features:
-        return ReshadeLoss(None, weights)
+        return ReshadeLoss(None, weights, pixel=pixel)
     from .features import load_feature_net
 
     net = load_feature_net(feature_net, vgg_weights).to(device)
     bf16 = precision == "bfloat16" or (precision == "auto" and bf16_is_fast(device))
-    return ReshadeLoss(net, weights, torch.bfloat16 if bf16 else torch.float32)
+    return ReshadeLoss(net, weights, torch.bfloat16 if bf16 else torch.float32, pixel)

@@ -247,7 +247,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--val-examples", type=int, default=16)
     p.add_argument(
         "--loss-weights",
-        help="L1,VGG,STYLE as for train (default: the weights the checkpoint was trained with)",
+        help="PIXEL,VGG,STYLE as for train (default: the weights the checkpoint was trained with)",
     )
     p.add_argument("--feature-net", default="auto", help="as for train (auto|vgg19|hed-vgg16)")
     p.add_argument("--vgg-weights", help="torchvision VGG-19 state dict")
@@ -289,7 +289,12 @@ def qat(args: argparse.Namespace) -> dict:
 
     weights = LossWeights.parse(args.loss_weights or base.get("loss_weights") or str(LossWeights()))
     criterion = make_loss(
-        weights, args.feature_net, args.vgg_weights, args.feature_precision, torch.device("cpu")
+        weights,
+        args.feature_net,
+        args.vgg_weights,
+        args.feature_precision,
+        torch.device("cpu"),
+        base.get("pixel_loss", "l1"),
     )
     if base.get("feature_net") and base["feature_net"] != criterion.ident:
         print(
@@ -325,6 +330,7 @@ def qat(args: argparse.Namespace) -> dict:
         "step": int(base.get("step", 0)) + args.steps,
         "feature_net": criterion.ident,
         "loss_weights": str(weights),
+        "pixel_loss": criterion.pixel,
         "args": base.get("args", {}),
         "base_checkpoint": str(args.checkpoint.resolve()),
         "base_step": base.get("step"),

@@ -32,7 +32,7 @@ from .losses import LossWeights, ReshadeLoss, make_loss
 from .model import NetConfig, ReshadeNet, count_parameters, net_config
 
 CHECKPOINT = "checkpoint.pt"
-LOG_FIELDS = ("step", "lr", "loss", "l1", "vgg", "style", "examples", "steps_per_s", "elapsed_s")
+LOG_FIELDS = ("step", "lr", "loss", "pixel", "vgg", "style", "examples", "steps_per_s", "elapsed_s")
 VAL_FIELDS = ("step", "examples", "psnr_input", "psnr_ours", "gain_db")
 
 
@@ -56,8 +56,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--loss-weights",
         default=str(LossWeights()),
-        help="L1,VGG,STYLE weights (default: the paper's 0.1,0.01,1; with VGG and STYLE 0 "
+        help="PIXEL,VGG,STYLE weights (default: the paper's 0.1,0.01,1; with VGG and STYLE 0 "
         "no perceptual network runs: about 5x faster steps on a CPU)",
+    )
+    p.add_argument(
+        "--pixel-loss",
+        choices=("l1", "l2"),
+        default="l1",
+        help="the pixel term: l1 (the paper's) or l2 (mean squared error)",
     )
     p.add_argument("--feature-net", choices=CHOICES, default="auto")
     p.add_argument("--vgg-weights", help="torchvision VGG-19 state dict (the paper's network)")
@@ -286,7 +292,14 @@ class RunLog:
 
 def make_criterion(args: argparse.Namespace, d: Dist) -> ReshadeLoss:
     weights = LossWeights.parse(args.loss_weights)
-    return make_loss(weights, args.feature_net, args.vgg_weights, args.feature_precision, d.device)
+    return make_loss(
+        weights,
+        args.feature_net,
+        args.vgg_weights,
+        args.feature_precision,
+        d.device,
+        args.pixel_loss,
+    )
 
 
 def restore(run_dir: Path, net: ReshadeNet, opt, feature_ident: str, d: Dist) -> int:
@@ -364,6 +377,7 @@ def train(args: argparse.Namespace) -> ReshadeNet:
         "feature_net": criterion.ident,
         "feature_precision": str(criterion.feature_dtype).removeprefix("torch."),
         "loss_weights": str(criterion.weights),
+        "pixel_loss": criterion.pixel,
         "args": {k: v for k, v in args_json.items() if not k.startswith("_")},
         "world_size": d.world,
         "train_examples": len(dataset),

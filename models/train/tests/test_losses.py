@@ -90,13 +90,13 @@ def test_loss_zero_on_match_masked_and_differentiable(hed):
     mask = torch.ones(2, 1, 32, 32)
     mask[..., :, 16:] = 0
     same, parts = loss_fn(target.clone(), target, mask)
-    assert float(same) == 0.0 and parts["l1"] == 0.0
+    assert float(same) == 0.0 and parts["pixel"] == 0.0
     hidden = target.clone()
     hidden[..., :, 16:] = 0.0  # differs from target only where the mask is 0
     assert float(loss_fn(hidden, target, mask)[0]) == 0.0
     pred = (target + 0.1 * torch.randn(2, 3, 32, 32, generator=g)).requires_grad_()
     total, parts = loss_fn(pred, target, mask)
-    assert parts["l1"] > 0 and parts["vgg"] > 0 and parts["style"] > 0
+    assert parts["pixel"] > 0 and parts["vgg"] > 0 and parts["style"] > 0
     total.backward()
     assert pred.grad.abs().sum() > 0
     assert pred.grad[..., :, 16:].abs().sum() == 0  # masked pixels get no gradient
@@ -117,7 +117,7 @@ def test_bfloat16_features_track_float32(hed):
 
 def test_loss_weights_parse_and_refuse():
     w = LossWeights.parse("0.1,0,0")
-    assert (w.l1, w.vgg, w.style) == (0.1, 0.0, 0.0) and not w.needs_features
+    assert (w.pixel, w.vgg, w.style) == (0.1, 0.0, 0.0) and not w.needs_features
     assert LossWeights.parse(str(LossWeights())) == LossWeights()
     for bad in ("0.1,0", "a,b,c", "0,0,0", "-1,0,0"):
         with pytest.raises(ValueError, match="--loss-weights"):
@@ -134,6 +134,18 @@ def test_pixel_only_loss_runs_without_a_feature_network(hed):
     mask = torch.ones(1, 1, 16, 16)
     total, parts = pixels(pred, target, mask)
     assert parts["vgg"] == 0.0 and parts["style"] == 0.0
-    assert float(total) == pytest.approx(0.1 * parts["l1"])
+    assert float(total) == pytest.approx(0.1 * parts["pixel"])
     full_total, _ = ReshadeLoss(hed)(pred, target, mask)
     assert float(full_total) > float(total)
+
+
+def test_l2_pixel_loss_is_the_masked_mean_squared_error():
+    target = torch.zeros(1, 3, 4, 4)
+    pred = torch.full((1, 3, 4, 4), 0.5)
+    mask = torch.ones(1, 1, 4, 4)
+    mask[..., :2, :] = 0
+    loss = ReshadeLoss(None, LossWeights.parse("1,0,0"), pixel="l2")
+    total, parts = loss(pred, target, mask)
+    assert parts["pixel"] == pytest.approx(0.125)  # half the pixels masked: 0.25 * 0.5
+    with pytest.raises(ValueError, match="pixel loss"):
+        ReshadeLoss(None, LossWeights.parse("1,0,0"), pixel="l3")

@@ -143,8 +143,9 @@ def test_rescan_picks_up_new_examples(data, tmp_path, monkeypatch):
 
 def test_pixel_only_training_records_its_loss(data, tmp_path):
     run = tmp_path / "pixels"
-    train(train_args(data, run, 2, loss_weights="0.1,0,0"))
+    train(train_args(data, run, 2, loss_weights="0.1,0,0", pixel_loss="l2"))
     ckpt = torch.load(run / "checkpoint.pt", weights_only=False)
     assert ckpt["feature_net"] == "none" and ckpt["loss_weights"] == "0.1,0,0"
+    assert ckpt["pixel_loss"] == "l2"
     log = read_csv(run / "log.csv")
     assert all(float(r["vgg"]) == 0.0 and float(r["style"]) == 0.0 for r in log)

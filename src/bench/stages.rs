@@ -210,11 +210,24 @@ fn time_reshading(net: &NetReshader, p: &Prepared) -> Result<f64, BenchError> {
     Ok(started.elapsed().as_secs_f64() * 1e3)
 }
 
+/// The size the network runs at, and the residual's upsampling when it is reduced.
+fn reshade_size(ctx: &Context, ww: u32, wh: u32) -> String {
+    let scale = ctx.reshader.options().scale;
+    if scale < 1.0 {
+        format!("×{scale} of {ww}x{wh} (residual upsampled)")
+    } else {
+        format!("{ww}x{wh}")
+    }
+}
+
 fn detail(ctx: &Context, stage: &str, board: &Board, run: &Run) -> String {
     let views = board.views();
     let [ww, wh] = run.work_size;
     match stage {
-        "decode" => "image crate decode to 8-bit RGB, then float sRGB".into(),
+        "decode" => {
+            "Photo::load: decode to 8-bit RGB, EXIF orientation and field of view, float sRGB"
+                .into()
+        }
         "depth" => format!(
             "{} {} ({}), network input {}x{}",
             ctx.depth.manifest().name,
@@ -232,12 +245,23 @@ fn detail(ctx: &Context, stage: &str, board: &Board, run: &Run) -> String {
             "once per photo at {ww}x{wh} by the runtime's relocator: {}",
             ctx.relocator.description()
         ),
-        "reshade encoder" if ctx.reshader.is_split() => format!("once per photo at {ww}x{wh}"),
+        "reshade encoder" if ctx.reshader.is_split() => {
+            format!("once per photo at {}", reshade_size(ctx, ww, wh))
+        }
         "reshade encoder" => {
             "single-graph model: only input preparation here, the whole network runs per view"
                 .into()
         }
-        "reshade decoder × views" => format!("{views} views at {ww}x{wh}"),
+        "reshade decoder × views" => {
+            let o = ctx.reshader.options();
+            let network = match o.key_views {
+                Some(k) if k < views => {
+                    format!("network on {k} key views, the others interpolated")
+                }
+                _ => "network on every view".into(),
+            };
+            format!("{views} views, {network}, at {}", reshade_size(ctx, ww, wh))
+        }
         "LDI render × views" => {
             let (vw, vh) = board.view_size();
             format!("{views} views of {vw}x{vh}")

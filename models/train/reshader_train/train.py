@@ -61,9 +61,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--pixel-loss",
-        choices=("l1", "l2"),
+        choices=("l1", "l2", "psnr"),
         default="l1",
-        help="the pixel term: l1 (the paper's) or l2 (mean squared error)",
+        help="the pixel term: l1 (the paper's), l2 (mean squared error) or psnr (minus the "
+        "per-crop PSNR, the evaluation's measure)",
     )
     p.add_argument("--feature-net", choices=CHOICES, default="auto")
     p.add_argument("--vgg-weights", help="torchvision VGG-19 state dict (the paper's network)")

@@ -1,3 +1,5 @@
+import math
+
 import h5py
 import pytest
 import torch
@@ -149,3 +151,14 @@ def test_l2_pixel_loss_is_the_masked_mean_squared_error():
     assert parts["pixel"] == pytest.approx(0.125)  # half the pixels masked: 0.25 * 0.5
     with pytest.raises(ValueError, match="pixel loss"):
         ReshadeLoss(None, LossWeights.parse("1,0,0"), pixel="l3")
+
+
+def test_psnr_pixel_loss_is_minus_the_mean_per_sample_psnr():
+    target = torch.zeros(2, 3, 4, 4)
+    pred = torch.zeros(2, 3, 4, 4)
+    pred[0] = 0.1  # 20 dB
+    pred[1] = 0.01  # 40 dB
+    mask = torch.ones(2, 1, 4, 4)
+    _, parts = ReshadeLoss(None, LossWeights.parse("1,0,0"), pixel="psnr")(pred, target, mask)
+    psnr = [10 * math.log10(1 / (mse + 1e-5)) for mse in (1e-2, 1e-4)]  # eps caps at 50 dB
+    assert parts["pixel"] == pytest.approx(-sum(psnr) / 2, abs=1e-3)

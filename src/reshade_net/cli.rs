@@ -16,8 +16,8 @@ pub const DEFAULT_MODEL_DIR: &str = "models/reshade";
 #[derive(Clone, Debug, clap::Args)]
 pub struct ReshadeArgs {
     /// Reshading model: a manifest (.json; the single graph, or either half of an
-    /// encoder/decoder pair) or a directory of them. Default: models/reshade, or
-    /// $RESHADER_MODEL.
+    /// encoder/decoder pair) or a directory of them, or `none` to keep the photo's
+    /// shading. Default: models/reshade, or $RESHADER_MODEL.
     #[arg(long)]
     pub model: Option<PathBuf>,
     /// Model precision to load (int8 and fp16 need the model exported at that precision;
@@ -71,6 +71,10 @@ impl ReshadeArgs {
             .clone()
             .or_else(|| std::env::var_os("RESHADER_MODEL").map(PathBuf::from));
         let path = match chosen {
+            Some(path) if path.as_os_str() == "none" => {
+                log::info!("reshading off (--model none): views keep the photo's shading");
+                return Ok(Box::new(IdentityReshader));
+            }
             Some(path) => path,
             None => match default_model_dir() {
                 Some(dir) => dir,

@@ -326,9 +326,10 @@ fn render_views(
     let relocation = t.time("relocate_prepare", || {
         relocator.prepare(&fitted.image, &fitted.depth, &fitted.source, reach)
     })?;
+    let centres: Vec<[f64; 3]> = cameras.iter().map(|c| frame.camera(c.centre)).collect();
+    let reshaded = t.time("reshade", || prepared.reshade_all(&centres))?;
     let mut views = Vec::with_capacity(cameras.len());
-    for camera in cameras {
-        let colours = t.time("reshade", || prepared.reshade(frame.camera(camera.centre)))?;
+    for (colours, camera) in reshaded.into_iter().zip(cameras) {
         let view = t.time("relocate", || relocation.render(&colours, camera))?;
         views.push(view.to_rgb8());
     }

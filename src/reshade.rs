@@ -35,6 +35,12 @@ pub trait Reshader {
 pub trait PreparedPhoto {
     /// The photo reshaded for a camera at `centre` (input camera frame, training units).
     fn reshade(&self, centre: [f64; 3]) -> Result<SrgbImage, ReshadeError>;
+
+    /// The photo reshaded for every camera, in order. Given all views at once, a network
+    /// can run only some of them and interpolate the rest (`--key-views`).
+    fn reshade_all(&self, centres: &[[f64; 3]]) -> Result<Vec<SrgbImage>, ReshadeError> {
+        centres.iter().map(|&c| self.reshade(c)).collect()
+    }
 }
 
 /// Stands in until a reshading model is loaded: returns the photo unchanged. Whoever

@@ -544,6 +544,10 @@ impl PreparedPhoto for NetPhoto<'_> {
     fn reshade(&self, centre: [f64; 3]) -> Result<SrgbImage, ReshadeError> {
         Ok(self.reshade_views(&[centre])?.remove(0))
     }
+
+    fn reshade_all(&self, centres: &[[f64; 3]]) -> Result<Vec<SrgbImage>, ReshadeError> {
+        Ok(self.reshade_views(centres)?)
+    }
 }
 
 /// The network's disparity input: `clamp(0.25 / depth, 0, 1)`; depth that is missing

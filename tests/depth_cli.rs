@@ -9,6 +9,7 @@ use image::RgbImage;
 
 fn reshader(args: &[&str]) -> std::process::Output {
     Command::new(env!("CARGO_BIN_EXE_reshader"))
+        .env("RESHADER_MODEL", "none")
         .args(args)
         .output()
         .expect("run reshader")

@@ -35,8 +35,12 @@ lens_pitch = 4.0
 offset = 0.5
 "#;
 
+/// The binary with reshading off unless a test passes --model, so these tests neither
+/// slow down nor change when a trained model ships in models/reshade.
 fn reshader() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_reshader"))
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_reshader"));
+    cmd.env("RESHADER_MODEL", "none");
+    cmd
 }
 
 fn board(dir: &Path) -> PathBuf {
@@ -287,6 +291,102 @@ fn convert_with_a_missing_depth_model_fails_before_any_photo() {
     );
     assert!(output.stdout.is_empty(), "no photo was attempted");
     assert!(!dir.path().join("one.reshader").exists());
+}
+
+/// The tiny reshading fixture network.
+fn fixture_reshade_model() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("models/fixtures/reshade-fixture-fp32.json")
+}
+
+#[test]
+fn convert_reshades_with_the_model_loaded_once_and_records_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let board = board(dir.path());
+    let photos = [dir.path().join("a.jpg"), dir.path().join("b.jpg")];
+    for (i, p) in photos.iter().enumerate() {
+        std::fs::write(p, photo_bytes(i as u32 + 3)).unwrap();
+        write_depth(p);
+    }
+    let out = dir.path().join("out");
+    let convert = |model: &Path| {
+        reshader()
+            .args(["-v", "convert"])
+            .args(&photos)
+            .arg("--board")
+            .arg(&board)
+            .arg("--out")
+            .arg(&out)
+            .arg("--model")
+            .arg(model)
+            .arg("--json")
+            .output()
+            .unwrap()
+    };
+    let output = convert(&fixture_reshade_model());
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(output.status.success(), "{stderr}");
+    let lines = json_lines(&output.stdout);
+    assert_eq!(status_of(&lines, "converted"), 2, "{lines:?}");
+    assert_eq!(
+        stderr
+            .matches("reshading with reshade-fixture-fp32")
+            .count(),
+        1,
+        "the reshading network is loaded once per process: {stderr}"
+    );
+    for name in ["a", "b"] {
+        let run: Value =
+            serde_json::from_slice(&std::fs::read(out.join(name).join("run.json")).unwrap())
+                .unwrap();
+        let reshade = run["reshade"].as_str().unwrap();
+        assert!(
+            reshade.starts_with("reshade-fixture-fp32 ") && reshade.contains("fp32"),
+            "{run}"
+        );
+    }
+
+    // Another model is another conversion: the done-markers must not skip the photos.
+    let none = convert(Path::new("none"));
+    assert!(none.status.success());
+    let lines = json_lines(&none.stdout);
+    assert_eq!(status_of(&lines, "converted"), 2, "{lines:?}");
+    let run: Value =
+        serde_json::from_slice(&std::fs::read(out.join("a/run.json")).unwrap()).unwrap();
+    assert_eq!(run["reshade"], "identity (no model)");
+    let again = convert(Path::new("none"));
+    assert_eq!(status_of(&json_lines(&again.stdout), "skipped"), 2);
+}
+
+#[test]
+fn convert_with_a_bad_reshading_model_fails_before_any_photo() {
+    let dir = tempfile::tempdir().unwrap();
+    let board = board(dir.path());
+    let photo = dir.path().join("one.jpg");
+    std::fs::write(&photo, photo_bytes(1)).unwrap();
+    write_depth(&photo);
+    let broken = dir.path().join("broken-reshade.json");
+    std::fs::write(&broken, b"{\"format\": ").unwrap();
+    for model in [broken, dir.path().join("missing-reshade.json")] {
+        let output = reshader()
+            .arg("convert")
+            .arg(&photo)
+            .arg("--board")
+            .arg(&board)
+            .arg("--model")
+            .arg(&model)
+            .arg("--json")
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&output.stderr);
+        assert_eq!(output.status.code(), Some(1), "{stderr}");
+        let name = model.file_name().unwrap().to_string_lossy();
+        assert!(
+            stderr.contains("error: ") && stderr.contains(&*name),
+            "{stderr}"
+        );
+        assert!(output.stdout.is_empty(), "no photo was attempted");
+        assert!(!dir.path().join("one.reshader").exists());
+    }
 }
 
 /// Lines of a child's stdout, read on a thread so waits can be bounded.

@@ -34,8 +34,12 @@ lens_pitch = 4.0
 offset = 0.5
 "#;
 
+/// The binary with reshading off unless a test passes --model, so these tests neither
+/// slow down nor change when a trained model ships in models/reshade.
 fn reshader() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_reshader"))
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_reshader"));
+    cmd.env("RESHADER_MODEL", "none");
+    cmd
 }
 
 /// A camera-like test picture that moves with `t`.

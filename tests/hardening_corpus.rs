@@ -266,6 +266,7 @@ fn every_corrupt_photo_converts_or_fails_alone_with_its_own_message() {
     let out = dir.path().join("out").display().to_string();
     let board = tiny_board();
     let output = Command::new(env!("CARGO_BIN_EXE_reshader"))
+        .env("RESHADER_MODEL", "none")
         .args(["convert", "--board", &board, "--out", &out, "--json"])
         .args(&paths)
         .output()

@@ -94,6 +94,7 @@ fn eval_relocation_scores_the_relocators_and_writes_contact_sheets() {
     std::fs::create_dir_all(data.join("partial")).unwrap();
     let (sheets, json) = (dir.path().join("sheets"), dir.path().join("eval.json"));
     let out = Command::new(env!("CARGO_BIN_EXE_reshader"))
+        .env("RESHADER_MODEL", "none")
         .arg("eval-relocation")
         .arg(&data)
         .arg("--sheets")
@@ -142,6 +143,7 @@ fn eval_relocation_scores_the_relocators_and_writes_contact_sheets() {
 fn eval_relocation_names_a_folder_without_examples() {
     let dir = tempfile::tempdir().unwrap();
     let out = Command::new(env!("CARGO_BIN_EXE_reshader"))
+        .env("RESHADER_MODEL", "none")
         .arg("eval-relocation")
         .arg(dir.path())
         .output()

@@ -17,7 +17,9 @@ use crate::depth_net::cli::EstimateArgs;
 use crate::depth_net::{DepthEstimator, DepthNetError, DepthSource};
 use crate::pipeline::{self, Product, RenderOptions, SceneDepth};
 use crate::relocate::RelocateArgs;
-use crate::reshade::IdentityReshader;
+use crate::reshade::Reshader;
+use crate::reshade_net::cli::ReshadeArgs;
+use crate::reshade_net::NetError;
 
 /// Depth files looked for beside a photo, in order: `NAME_depth.EXT` holds depth in
 /// scene units, `NAME_disparity.EXT` relative disparity. Without one, the photo's
@@ -36,6 +38,8 @@ pub enum GalleryError {
     Watch(#[from] super::watch::WatchError),
     #[error(transparent)]
     DepthNet(#[from] DepthNetError),
+    #[error(transparent)]
+    ReshadeNet(#[from] NetError),
     #[error("{0}")]
     Options(String),
     #[error("{failed} of {total} photos failed")]
@@ -70,6 +74,8 @@ pub struct GalleryArgs {
     pub relocate: RelocateArgs,
     #[command(flatten)]
     pub estimate: EstimateArgs,
+    #[command(flatten)]
+    pub reshade: ReshadeArgs,
 }
 
 #[derive(clap::Args, Debug)]
@@ -115,8 +121,14 @@ the exit code is 0 only if every photo succeeded.
 
 Depth per photo: a sidecar NAME_depth.{npy,png,pfm,exr} (scene units) or
 NAME_disparity.{…} (relative disparity) beside it when there is one, else the depth the
-photo carries (GDepth / Dynamic Depth), else the depth network, which is loaded once
-before the first photo. Each run.json says which (inputs.depth.source).
+photo carries (GDepth / Dynamic Depth), else the depth network. Each run.json says
+which (inputs.depth.source).
+
+Every view is reshaded with the reshading model (--model, default models/reshade or
+$RESHADER_MODEL; --model none keeps the photo's shading); run.json names it (reshade).
+The depth and reshading networks are loaded once, before the first photo: a bad model
+fails the command before any photo is touched. Changing the model, its precision or the
+reshading options reconverts photos converted before.
 
 Examples:
   reshader convert ~/DCIM/*.jpg --board looking-glass-go
@@ -196,8 +208,9 @@ fn print_report(report: &PhotoReport, json: bool) {
     let _ = writeln!(out, "{line}").and_then(|()| out.flush());
 }
 
-/// The render pipeline as a converter: the board and the depth network are loaded here,
-/// once, and shared by every photo (a bad --depth-model fails before any photo).
+/// The render pipeline as a converter: the board, the depth network and the reshading
+/// network are loaded here, once, and shared by every photo (a bad --depth-model or
+/// --model fails before any photo).
 pub fn pipeline_converter(args: &GalleryArgs) -> Result<impl Converter, GalleryError> {
     let board = pipeline::load_board(&args.board, args.calibration.as_deref())?;
     let estimator = args
@@ -205,7 +218,8 @@ pub fn pipeline_converter(args: &GalleryArgs) -> Result<impl Converter, GalleryE
         .estimator(DepthSource::Auto)
         .map_err(GalleryError::Options)?;
     estimator.net()?;
-    let fingerprint = fingerprint(args, &board, &estimator);
+    let reshader = args.reshade.build()?;
+    let fingerprint = fingerprint(args, &board, &estimator, &*reshader);
     let estimator = Arc::new(estimator);
     let board_file = Path::new(&args.board)
         .is_file()
@@ -213,7 +227,6 @@ pub fn pipeline_converter(args: &GalleryArgs) -> Result<impl Converter, GalleryE
     let only = args.only.clone();
     let calibration = args.calibration.clone();
     let depthiness = args.depthiness;
-    let reshader = IdentityReshader;
     let relocator = args.relocate.build();
     Ok(FnConverter::new(
         fingerprint,
@@ -237,7 +250,7 @@ pub fn pipeline_converter(args: &GalleryArgs) -> Result<impl Converter, GalleryE
                 out_dir: out_dir.into(),
             };
             let record =
-                pipeline::render(&opts, &reshader, &*relocator).map_err(|e| e.to_string())?;
+                pipeline::render(&opts, &*reshader, &*relocator).map_err(|e| e.to_string())?;
             Ok(ConvertReport {
                 outputs: record.outputs.iter().map(|o| out_dir.join(o)).collect(),
                 timings_ms: record
@@ -252,14 +265,19 @@ pub fn pipeline_converter(args: &GalleryArgs) -> Result<impl Converter, GalleryE
 }
 
 /// Everything that changes a conversion's outputs, so that changing it reconverts.
-fn fingerprint(args: &GalleryArgs, board: &Board, estimator: &DepthEstimator) -> String {
+fn fingerprint(
+    args: &GalleryArgs,
+    board: &Board,
+    estimator: &DepthEstimator,
+    reshader: &dyn Reshader,
+) -> String {
     let calibration = args
         .calibration
         .as_deref()
         .map(|p| crate::record::sha256_file(p).unwrap_or_else(|e| format!("unreadable: {e}")));
     format!(
         "reshader {}; board {} from {}; calibration {:?}; only {:?}; depthiness {:?}; \
-         {}; reshade identity; relocate {}",
+         {}; reshade {}; relocate {}",
         env!("CARGO_PKG_VERSION"),
         board.name(),
         board.origin(),
@@ -267,6 +285,7 @@ fn fingerprint(args: &GalleryArgs, board: &Board, estimator: &DepthEstimator) ->
         args.only,
         args.depthiness,
         estimator.describe(),
+        reshader.description(),
         args.relocate.build().description()
     )
 }

@@ -43,3 +43,31 @@ fn seed_corpora_pass_their_targets() {
     let count = replay(&Path::new(env!("CARGO_MANIFEST_DIR")).join("fuzz/seeds"));
     assert!(count >= 30, "only {count} seeds");
 }
+
+/// An allocation bomb the replay above cannot see (nothing limits memory here): a
+/// Transpose whose `perm` holds 2^26 made tract allocate 512 MiB while loading.
+#[test]
+fn transpose_perm_that_is_no_permutation_is_refused_before_tract() {
+    use reshader::engine::{tract::TractEngine, Engine, ModelSource};
+    let path = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/fuzz_regressions/onnx_model/transpose-perm-allocates-512mib.onnx");
+    let bytes = std::fs::read(&path).unwrap();
+    let model = ModelSource {
+        path: &path,
+        bytes: &bytes,
+        precision: reshader::manifest::Precision::Fp32,
+    };
+    let err = TractEngine::new(1)
+        .plan(model, &[("image", vec![1, 8, 12, 3])], &["depth"])
+        .err()
+        .expect("the graph is refused");
+    let text = err.to_string();
+    assert!(
+        text.contains("Transpose") && text.contains("perm"),
+        "{text}"
+    );
+    assert!(
+        text.contains("transpose-perm-allocates-512mib.onnx"),
+        "{text}"
+    );
+}

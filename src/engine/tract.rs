@@ -129,6 +129,32 @@ fn guarded<T>(
     })
 }
 
+/// tract sizes a buffer by the largest entry of a Transpose's `perm` before checking that
+/// it is a permutation (fuzzing: one entry of 2^26 made it allocate 512 MiB), so such
+/// graphs are refused first.
+fn check_transposes(model: &tract_onnx::pb::ModelProto) -> Result<(), String> {
+    let nodes = model.graph.iter().flat_map(|g| &g.node);
+    for node in nodes.filter(|n| n.op_type == "Transpose") {
+        let Some(perm) = node.attribute.iter().find(|a| a.name == "perm") else {
+            continue;
+        };
+        let mut seen = vec![false; perm.ints.len()];
+        for &axis in &perm.ints {
+            match usize::try_from(axis).ok().and_then(|a| seen.get_mut(a)) {
+                Some(slot) if !*slot => *slot = true,
+                _ => {
+                    return Err(format!(
+                        "the graph is malformed: Transpose node {:?} has perm {:?}, not a \
+                         permutation of its axes",
+                        node.name, perm.ints
+                    ))
+                }
+            }
+        }
+    }
+    Ok(())
+}
+
 fn load_error(path: &Path, e: TractError) -> EngineError {
     EngineError::Load {
         engine: NAME,
@@ -149,6 +175,11 @@ fn optimized(
     let mut proto = onnx
         .proto_model_for_read(&mut &*model.bytes)
         .map_err(load)?;
+    check_transposes(&proto).map_err(|message| EngineError::Load {
+        engine: NAME,
+        path: model.path.to_owned(),
+        message,
+    })?;
     if model.precision == Precision::Fp16 {
         let n = fp16::widen_to_f32(&mut proto);
         log::debug!("{}: widened {n} fp16 tensors to f32", model.path.display());

@@ -26,7 +26,10 @@ use crate::depth_net::{self, DepthNet, DepthNetError, DepthSource, StageOptions}
 use crate::display::{DisplayError, FrameSink};
 use crate::photo::SrgbImage;
 use crate::relocate::{self, RelocateArgs, RelocateError, Relocator};
-use crate::views::{robust_focus, robust_range, Intrinsics, ViewError, ViewRig};
+use crate::reshade::{ReshadeError, Reshader, TrainingFrame};
+use crate::reshade_net::cli::ReshadeArgs;
+use crate::reshade_net::NetError;
+use crate::views::{robust_focus, robust_range, Intrinsics, ViewCamera, ViewError, ViewRig};
 
 #[derive(Debug, thiserror::Error)]
 pub enum LiveError {
@@ -48,6 +51,10 @@ pub enum LiveError {
     View(#[from] ViewError),
     #[error(transparent)]
     Relocate(#[from] RelocateError),
+    #[error(transparent)]
+    ReshadeNet(#[from] NetError),
+    #[error(transparent)]
+    Reshade(#[from] ReshadeError),
     #[error("{0}")]
     Options(String),
 }
@@ -115,6 +122,8 @@ pub struct LiveArgs {
     pub relocate: RelocateArgs,
     #[command(flatten)]
     pub estimate: EstimateArgs,
+    #[command(flatten)]
+    pub reshade: ReshadeArgs,
 }
 
 pub const LIVE_ABOUT: &str = "\
@@ -125,8 +134,12 @@ logged once a second; a summary is printed at the end.
 
 By default (--depth off) all views are the camera frame itself (the panel shows it flat).
 With --depth network the depth network runs on the working frame (its depth reused while
-younger than --depth-max-age-ms) and every view is relocated with it (--relocate);
-reshading is not run live yet.
+younger than --depth-max-age-ms) and every view is relocated with it (--relocate).
+
+Live views keep the camera's shading unless a reshading model is named (--model, or
+$RESHADER_MODEL; needs --depth network): unlike render, live does not fall back to
+models/reshade, because the shipped network takes about 0.1 s per view on a CPU, seconds
+per frame for a 48-view board. --key-views and --reshade-scale cut that cost.
 
 Examples:
   reshader live --camera /dev/video0 --list-formats
@@ -189,6 +202,16 @@ pub fn run_live(args: &LiveArgs) -> Result<(), LiveError> {
 /// fails before the camera is opened.
 fn live_depth(args: &LiveArgs) -> Result<Option<LiveDepth>, LiveError> {
     if args.depth == LiveDepthMode::Off {
+        if args
+            .reshade
+            .model
+            .as_ref()
+            .is_some_and(|m| m.as_os_str() != "none")
+        {
+            return Err(LiveError::Options(
+                "--model needs --depth network: reshading needs the frame's depth".into(),
+            ));
+        }
         return Ok(None);
     }
     if !(args.fov > 0.0 && args.fov < 180.0) {
@@ -201,13 +224,28 @@ fn live_depth(args: &LiveArgs) -> Result<Option<LiveDepth>, LiveError> {
         .estimate
         .estimator(DepthSource::Network)
         .map_err(LiveError::Options)?;
+    let reshader = live_reshader(&args.reshade)?;
     Ok(Some(LiveDepth {
+        reshader,
         net: estimator.net()?,
         opts: *estimator.options(),
         max_age: Duration::from_millis(args.depth_max_age_ms),
         relocator: args.relocate.build(),
         hfov_deg: args.fov,
     }))
+}
+
+/// The reshading network when one is named explicitly (see [`LIVE_ABOUT`] for why live
+/// has no default model), built before the camera opens so that a bad model fails first.
+fn live_reshader(args: &ReshadeArgs) -> Result<Option<Box<dyn Reshader + Send + Sync>>, LiveError> {
+    let named = args
+        .model
+        .clone()
+        .or_else(|| std::env::var_os("RESHADER_MODEL").map(PathBuf::from));
+    match named {
+        Some(model) if model.as_os_str() != "none" => Ok(Some(args.build()?)),
+        _ => Ok(None),
+    }
 }
 
 #[derive(Default)]
@@ -226,6 +264,8 @@ pub struct LiveDepth {
     pub max_age: Duration,
     pub relocator: Box<dyn Relocator>,
     pub hfov_deg: f64,
+    /// None: the views keep the camera's shading.
+    pub reshader: Option<Box<dyn Reshader + Send + Sync>>,
 }
 
 /// Stage names in pipeline order, as reported.
@@ -305,9 +345,12 @@ pub fn run_pipeline(
     log::info!("live: display {}", sink.describe());
     let depth_note = match &opts.depth {
         Some(d) => format!(
-            "depth {} (reused for {} ms), relocation {}",
+            "depth {} (reused for {} ms), reshading {}, relocation {}",
             d.net.manifest().name,
             d.max_age.as_millis(),
+            d.reshader
+                .as_ref()
+                .map_or_else(|| "off".into(), |r| r.description()),
             d.relocator.description()
         ),
         None => "no depth (--depth off), so every view is the camera frame".into(),
@@ -484,9 +527,10 @@ fn flat_views(work: &RgbImage, count: usize, views: &mut Vec<RgbImage>) {
     }
 }
 
-/// The views of one frame seen from the board's cameras, relocated with its depth: the
-/// same rig as `render` (zero-parallax plane at the robust middle depth, baseline fitted
-/// to the parallax budget), recomputed per frame because the depth changes.
+/// The views of one frame seen from the board's cameras, reshaded (with a model) and
+/// relocated with its depth: the same rig as `render` (zero-parallax plane at the robust
+/// middle depth, baseline fitted to the parallax budget), recomputed per frame because
+/// the depth changes.
 fn relocated_views(
     work: &RgbImage,
     state: &DepthState,
@@ -508,10 +552,34 @@ fn relocated_views(
         .live
         .relocator
         .prepare(&image, depth, &source, reach)?;
+    let reshaded = match &state.live.reshader {
+        Some(reshader) => reshade_views(&**reshader, &image, depth, focus, &cameras)?,
+        None => Vec::new(),
+    };
     cameras
         .iter()
-        .map(|camera| Ok(prepared.render(&image, camera)?.to_rgb8()))
+        .enumerate()
+        .map(|(i, camera)| {
+            let colours = reshaded.get(i).unwrap_or(&image);
+            Ok(prepared.render(colours, camera)?.to_rgb8())
+        })
         .collect()
+}
+
+/// The frame reshaded for every camera, as `render` does: in the training frame, where
+/// the focus depth is the training scenes'.
+fn reshade_views(
+    reshader: &dyn Reshader,
+    image: &SrgbImage,
+    depth: &DepthMap,
+    focus: f64,
+    cameras: &[ViewCamera],
+) -> Result<Vec<SrgbImage>, LiveError> {
+    let frame = TrainingFrame::for_focus(focus);
+    let training_depth = frame.depth(depth);
+    let prepared = reshader.prepare(image, &training_depth)?;
+    let centres: Vec<[f64; 3]> = cameras.iter().map(|c| frame.camera(c.centre)).collect();
+    Ok(prepared.reshade_all(&centres)?)
 }
 
 /// Scales `image` to cover `w`×`h` and crops the centre, keeping its aspect.

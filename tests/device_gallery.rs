@@ -539,3 +539,27 @@ fn watch_converts_photos_as_they_appear_and_survives_a_restart() {
         "{stderr}"
     );
 }
+
+#[test]
+fn watch_with_a_bad_reshading_model_fails_before_reading_the_folder() {
+    let dir = tempfile::tempdir().unwrap();
+    let board = board(dir.path());
+    let photos = dir.path().join("photos");
+    std::fs::create_dir(&photos).unwrap();
+    let photo = photos.join("there.jpg");
+    std::fs::write(&photo, photo_bytes(2)).unwrap();
+    write_depth(&photo);
+    let out = dir.path().join("out");
+    let mut child = spawn_watch(&photos, &board, &out, &["--model", "no-such-reshade.json"]);
+    let started = std::time::Instant::now();
+    while child.try_wait().unwrap().is_none() {
+        assert!(started.elapsed() < PATIENCE, "watch kept running");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let output = child.wait_with_output().unwrap();
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert_eq!(output.status.code(), Some(1), "{stderr}");
+    assert!(stderr.contains("no-such-reshade.json"), "{stderr}");
+    assert!(output.stdout.is_empty(), "no photo was attempted");
+    assert!(!out.exists());
+}

@@ -138,7 +138,8 @@ pub const WATCH_ABOUT: &str = "\
 Convert photos as they appear in a folder: inotify (or polling with --poll) notices
 them, a file is converted once its writer closed it or it stopped changing, and photos a
 previous run finished are skipped. Stops cleanly on SIGINT/SIGTERM (a second signal
-exits at once).
+exits at once). Depth and reshading as for convert: the networks are loaded once, at
+start, and a bad --model or --depth-model fails before the folder is read.
 
 Example:
   reshader watch ~/DCIM/Camera --board looking-glass-go --out ~/lightfield --json";

@@ -1,8 +1,10 @@
 //! Kill loop: `reshader render` and `reshader convert` are SIGKILLed at pseudo-random
 //! moments (fixed seed, bounded count) while they replace the output of an earlier run
 //! on another photo. After every kill the output folder may hold only complete files of
-//! the old or the new run, no temporaries; and once the next run's start-up recovery has
-//! finished or discarded the killed run's commit, exactly the old or the new output.
+//! the old or the new run, besides at most a hidden temporary of the killed process (a
+//! SIGKILL between writing and renaming one cannot be prevented); and once the next
+//! run's start-up recovery has finished or discarded the killed run's commit and
+//! deleted its temporaries, exactly the old or the new output.
 //! Nothing here is timed: the delays only spread the kills over the run.
 
 mod spine_support;
@@ -173,10 +175,19 @@ impl Setup {
 }
 
 /// After a kill: only complete files, each one of the old or the new run's, and no
-/// temporaries among them.
-fn check_after_kill(state: &BTreeMap<String, Vec<u8>>, refs: &[Reference; 2], at: &str) {
+/// temporaries among them but the killed process's own (`.<name>.tmp-<pid>`).
+fn check_after_kill(
+    state: &BTreeMap<String, Vec<u8>>,
+    refs: &[Reference; 2],
+    killed: u32,
+    at: &str,
+) {
+    let own_temporary = format!(".tmp-{killed}");
     for (rel, bytes) in state {
         let name = Path::new(rel).file_name().unwrap().to_string_lossy();
+        if name.starts_with('.') && name.ends_with(&own_temporary) {
+            continue;
+        }
         assert!(
             !name.starts_with('.') || name == MARKER,
             "{at}: temporary {rel} in the output folder"
@@ -212,6 +223,7 @@ fn kill_loop(convert: bool) {
         let which = i % 2;
         setup.place(which);
         let mut child = setup.command(convert, &out_root).spawn().unwrap();
+        let killed = child.id();
         // Spread over the whole run, half the kills in its last third (the commit).
         let fraction = if i % 2 == 0 {
             rng.next()
@@ -223,7 +235,7 @@ fn kill_loop(convert: bool) {
         let status = child.wait().unwrap();
         finished_kills += usize::from(status.success());
         let at = format!("kill {i} after {fraction:.2} of a run");
-        check_after_kill(&snapshot(&out), &refs, &at);
+        check_after_kill(&snapshot(&out), &refs, killed, &at);
         // What the next run does first; then the folder is one run's whole output.
         reshader::output::recover(&out).unwrap();
         let state = snapshot(&out);

@@ -296,12 +296,24 @@ impl Reshader for NetReshader {
     fn description(&self) -> String {
         let m = &self.model(Role::Decoder).manifest;
         let o = &self.options;
+        // The weights' checksums, not only name and version: a retrained model keeps its
+        // name, and the gallery's done-markers must see the change.
+        let short = |sha: &str| sha.trim().chars().take(12).collect::<String>();
+        let weights = if self.is_split() {
+            let e = &self.model(Role::Encoder).manifest;
+            format!(
+                "encoder {} + decoder {}",
+                short(&e.sha256),
+                short(&m.sha256)
+            )
+        } else {
+            format!("single graph {}", short(&m.sha256))
+        };
         format!(
-            "{} {} ({}, {}, engine {} x{} threads, scale {}, key views {}, batch {}, parallel views {})",
+            "{} {} ({}, {weights}, engine {} x{} threads, scale {}, key views {}, batch {}, parallel views {})",
             m.name,
             m.version,
             m.precision,
-            if self.is_split() { "encoder+decoder" } else { "single graph" },
             self.engine.name(),
             self.engine.threads(),
             o.scale,

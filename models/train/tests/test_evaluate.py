@@ -1,4 +1,5 @@
 import json
+import math
 
 import pytest
 import torch
@@ -59,8 +60,16 @@ def test_summary_gain_and_scenes():
             "ssim_ours": 0.85,
         },
     ]
+    for r, valid in zip(rows, (100, 300), strict=True):
+        r["valid_values"] = valid
+        for method in ("input", "ours"):
+            r[f"mse_{method}"] = 10 ** (-r[f"psnr_{method}"] / 10)
     s = summarise(rows)
     assert s["val"]["gain_db"] == pytest.approx(1.5) and s["val"]["count"] == 2
+    assert s["val"]["gain_median_db"] == pytest.approx(1.5) and s["val"]["improved"] == 2
+    # Pooled: the mean squared error over all valid values, so the 300-value image weighs 3x.
+    pooled = 10 * math.log10(1 / ((1e-3 * 100 + 1e-2 * 300) / 400))
+    assert s["val"]["pooled_psnr_input"] == pytest.approx(pooled)
     assert s["val/a"]["psnr_ours"] == 32.0 and "val/b" in s
 
 

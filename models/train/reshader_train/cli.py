@@ -21,6 +21,11 @@ COMMANDS = [
     ("export", "reshader_train.export", "ONNX models (fp32/fp16/int8, single/split) + manifests"),
     ("quantize", "reshader_train.quantize", "quantisation-aware int8 fine-tuning of a checkpoint"),
     ("fixture", "reshader_train.fixture", "tiny model + parity data for the runtime's tests"),
+    (
+        "examples",
+        "reshader_train.examples",
+        "held-out examples as 8-bit PNGs with PyTorch's PSNR, for the runtime's tests",
+    ),
     ("convert-depth", "reshader_train.depthconv.command", "Caffe2 depth net -> ONNX int8, fp32"),
 ]
 

@@ -1,6 +1,7 @@
 import json
 import math
 
+import numpy as np
 import pytest
 import torch
 from PIL import Image
@@ -116,3 +117,27 @@ def test_evaluate_rejects_missing_checkpoint(tmp_path, capsys):
         cli.main(["evaluate", "--checkpoint", str(tmp_path / "x.pt"), "--data", str(tmp_path)]) == 2
     )
     assert "x.pt: checkpoint not found" in capsys.readouterr().err
+
+
+def test_examples_command_writes_what_the_runtime_reads(tmp_path):
+    val = write_dataset(tmp_path / "val", 3, 32, 64, seed=2)
+    cfg = net_config("4,8,8,16,16,16")
+    ckpt = tmp_path / "ckpt.pt"
+    torch.save({"model": ReshadeNet(cfg).state_dict(), "net_config": cfg.to_json()}, ckpt)
+    out = tmp_path / "examples"
+    args = ["examples", "--checkpoint", str(ckpt), "--data", str(val), "--count", "2"]
+    assert cli.main([*args, "--out", str(out)]) == 0
+    report = json.loads((out / "examples.json").read_text())
+    assert [e["example"] for e in report["examples"]] == ["00000", "00001"]
+    first = out / "00000"
+    with Image.open(first / "input.png") as im:
+        assert im.size == (64, 32) and im.mode == "RGB"
+    disparity = np.load(first / "disparity.npy")
+    assert disparity.shape == (32, 64) and disparity.dtype == np.float32
+    # The recorded input PSNR is that of the 8-bit PNGs as written.
+    a = np.asarray(Image.open(first / "input.png"), dtype=np.float64) / 255
+    b = np.asarray(Image.open(first / "reshaded.png"), dtype=np.float64) / 255
+    valid = np.asarray(Image.open(first / "mask.png")) > 127
+    mse = ((a - b)[valid] ** 2).mean()
+    assert report["examples"][0]["psnr_input"] == pytest.approx(10 * math.log10(1 / mse), abs=1e-3)
+    assert cli.main([*args, "--data", str(tmp_path / "nothing"), "--out", str(out)]) == 2

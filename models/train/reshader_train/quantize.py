@@ -40,7 +40,14 @@ INT8_FORMS = {
 SCHEME = {
     "weights": "int8, per output channel, symmetric (zero point 0)",
     "activations": "uint8, per tensor, asymmetric (min/max observers)",
-    "float_ops": ["LeakyRelu", "Resize", "Concat", "Expand", "Tanh", "camera MLP (Gemm)"],
+    "float_ops": [
+        "LeakyRelu",
+        "x2 upsampling (nearest by Concat+Reshape, fixed depthwise blur)",
+        "Concat",
+        "Expand",
+        "Tanh",
+        "camera MLP (Gemm)",
+    ],
 }
 EMA_MOMENTUM = 0.01
 

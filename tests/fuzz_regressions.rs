@@ -1,5 +1,6 @@
 //! Replays, without cargo-fuzz, every input the fuzz targets once crashed on
-//! (tests/fuzz_regressions/<target>/*) and the committed seeds (fuzz/seeds/<target>/*)
+//! (tests/fuzz_regressions/<target>/*), the committed seeds (fuzz/seeds/<target>/*) and
+//! the minimised corpora the fuzzing grew (fuzz/corpus-min/<target>/*, scripts/fuzz-cmin)
 //! through the same checks the targets run (fuzz/fuzz_targets/checks.rs): each must
 //! return normally now.
 
@@ -42,6 +43,12 @@ fn crash_inputs_found_by_fuzzing_stay_fixed() {
 fn seed_corpora_pass_their_targets() {
     let count = replay(&Path::new(env!("CARGO_MANIFEST_DIR")).join("fuzz/seeds"));
     assert!(count >= 30, "only {count} seeds");
+}
+
+#[test]
+fn minimised_fuzz_corpora_pass_their_targets() {
+    let count = replay(&Path::new(env!("CARGO_MANIFEST_DIR")).join("fuzz/corpus-min"));
+    assert!(count >= 1000, "only {count} corpus inputs");
 }
 
 /// An allocation bomb the replay above cannot see (nothing limits memory here): a

@@ -371,4 +371,22 @@ def build_scene(mi, scene: dict):
     for i, obj in enumerate(scene["objects"]):
         d.update(_object_shapes(mi, obj, f"object{i}"))
     d.update(light_shapes(mi, scene))
-    return mi.load_dict(d)
+    # The scene loader orders the shapes it instantiates, and with them the emitters,
+    # differently from one load to the next, and the emitter order decides which light
+    # each random number samples. Children handed over as objects keep the dictionary's
+    # order, so (seed, index) renders the same image every time.
+    bsdfs: dict = {}
+    return mi.load_dict({k: v if k == "type" else _load_child(mi, v, bsdfs) for k, v in d.items()})
+
+
+def _load_child(mi, child, bsdfs: dict):
+    """A scene child as an object. A material dict shared by several shapes is loaded once
+    (`bsdfs`, keyed by identity): its bitmap tensors cannot be handed to two loads."""
+    if not isinstance(child, dict):
+        return child
+    bsdf = child.get("bsdf")
+    if isinstance(bsdf, dict):
+        if id(bsdf) not in bsdfs:
+            bsdfs[id(bsdf)] = mi.load_dict(bsdf, parallel=False)
+        child = {**child, "bsdf": bsdfs[id(bsdf)]}
+    return mi.load_dict(child, parallel=False)

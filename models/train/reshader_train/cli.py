@@ -16,6 +16,11 @@ COMMANDS = [
         "render input/reshaded dataset examples (Mitsuba 3)",
     ),
     ("sheet", "reshader_train.render.sheet", "contact sheet PNG of a rendered dataset"),
+    (
+        "headroom",
+        "reshader_train.render.headroom",
+        "how much any network could gain: input vs input + noise-free change, re-rendered",
+    ),
     ("train", "reshader_train.train", "train the reshading network (single process or torchrun)"),
     ("evaluate", "reshader_train.evaluate", "PSNR/SSIM of input vs reshaded on held-out data"),
     ("export", "reshader_train.export", "ONNX models (fp32/fp16/int8, single/split) + manifests"),

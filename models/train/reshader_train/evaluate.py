@@ -173,17 +173,19 @@ def summarise(rows: list[dict]) -> dict[str, dict]:
     return out
 
 
-def format_table(summary: dict[str, dict], lpips_note: str | None) -> str:
+def format_table(
+    summary: dict[str, dict], lpips_note: str | None, labels: tuple[str, str] = ("Input", "Ours")
+) -> str:
     lines = [
         f"Tone mapping: exposure x{EVAL_EXPOSURE}, gamma {EVAL_GAMMA}; metrics masked by validity.",
         f"{'Split / scene':<28} {'Method':<7} {'PSNR':>7} {'SSIM':>7} {'LPIPS':>7}",
     ]
     for name, m in summary.items():
-        for i, method in enumerate(("input", "ours")):
+        for i, (method, label_text) in enumerate(zip(("input", "ours"), labels, strict=True)):
             label = f"{name} (n={m['count']})" if i == 0 else ""
             lp = f"{m[f'lpips_{method}']:7.4f}" if f"lpips_{method}" in m else f"{'-':>7}"
             lines.append(
-                f"{label:<28} {method.capitalize():<7} {m[f'psnr_{method}']:7.2f} "
+                f"{label:<28} {label_text:<7} {m[f'psnr_{method}']:7.2f} "
                 f"{m[f'ssim_{method}']:7.4f} {lp}"
             )
         lines.append(

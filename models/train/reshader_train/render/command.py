@@ -49,6 +49,14 @@ def add_arguments(parser) -> None:
         "--radius", default="0.1,0.3", help="novel camera shell radii MIN,MAX (default 0.1,0.3)"
     )
     parser.add_argument(
+        "--change-seeds",
+        type=int,
+        default=1,
+        help="ground truth = input + the mean (reshaded - input) over K sample seeds, which "
+        "keeps the input's noise and divides the change's variance by K (default 1: the "
+        "reshaded render of the input's seed); costs 2 more renders per extra seed",
+    )
+    parser.add_argument(
         "--randomize-materials",
         action="store_true",
         help="scene files: replace every material by a random one per example",
@@ -68,7 +76,7 @@ def _source(args):
     return SceneFileSource(args.scenes, args.randomize_materials, args.orbs or 0)
 
 
-def _settings(args) -> RenderSettings:
+def parse_settings(args) -> RenderSettings:
     width, height = _size(args.size)
     try:
         r_min, r_max = (float(v) for v in args.radius.split(","))
@@ -78,7 +86,10 @@ def _settings(args) -> RenderSettings:
         raise ValueError(f"--radius {args.radius!r}: need 0 <= MIN <= MAX")
     if args.spp < 1 or args.count < 0:
         raise ValueError("--spp must be >= 1 and --count >= 0")
-    return RenderSettings(width, height, args.spp, r_min, r_max)
+    change_seeds = getattr(args, "change_seeds", 1)
+    if change_seeds < 1:
+        raise ValueError(f"--change-seeds {change_seeds}: need at least 1")
+    return RenderSettings(width, height, args.spp, r_min, r_max, change_seeds)
 
 
 def summarize(seconds: list[float], skipped: int, failed: list) -> str:
@@ -112,7 +123,7 @@ def run(args) -> int:
     from .mitsuba_env import LlvmNotFound, load_mitsuba
 
     try:
-        settings = _settings(args)
+        settings = parse_settings(args)
         shard, shards = _shard(args.shard)
         source = _source(args)
         mi = load_mitsuba(args.threads)
@@ -127,7 +138,8 @@ def run(args) -> int:
     print(
         f"render: {source.name} -> {args.out}, seed {args.seed}, shard {shard}/{shards}: "
         f"{len(todo)} to render, {skipped} already complete; "
-        f"{settings.width}x{settings.height} at {settings.spp} spp",
+        f"{settings.width}x{settings.height} at {settings.spp} spp"
+        + (f", change over {settings.change_seeds} seeds" if settings.change_seeds > 1 else ""),
         flush=True,
     )
     seconds, failed = [], []

@@ -35,6 +35,9 @@ class RenderSettings:
     spp: int
     radius_min: float = 0.1
     radius_max: float = 0.3
+    # Sample seeds whose (reshaded - input) differences are averaged into the ground truth;
+    # 1 writes the reshaded render of the input's own seed.
+    change_seeds: int = 1
 
 
 def example_id(seed: int, index: int) -> str:
@@ -139,6 +142,7 @@ def render_views(
     seed: int,
     max_depth: int,
     timings: dict,
+    change_seeds: int = 1,
 ) -> dict:
     """input / reshaded / novel RGB, invalid fraction per pixel, and input depth."""
     from .integrator import make_path, make_reshade, render_depth, render_image
@@ -154,6 +158,14 @@ def render_views(
     out["reshaded"], out["invalid"] = reshaded[..., :3], reshaded[..., 3]
     out["z_primary"], out["z_rehit"] = reshaded[..., 4], reshaded[..., 5]
     timings["reshaded"] = time.perf_counter() - t
+    if change_seeds > 1:
+        t = time.perf_counter()
+        change, invalid = denoised_change(
+            scene, input_cam, spp, seed, change_seeds, path, reshade, out
+        )
+        out["reshaded"] = out["input"] + change
+        out["invalid"] = invalid
+        timings["change_seeds"] = time.perf_counter() - t
     t = time.perf_counter()
     out["novel"] = render_image(scene, novel_cam, spp, seed, path)[..., :3]
     timings["novel"] = time.perf_counter() - t
@@ -161,6 +173,29 @@ def render_views(
     out["depth"] = render_depth(scene, input_cam)
     timings["depth"] = time.perf_counter() - t
     return out
+
+
+def denoised_change(scene, camera, spp, seed, seeds, path, reshade, first):
+    """Mean of (reshaded - input) over `seeds` sample seeds (the first already rendered in
+    `first`), and the union of their invalid masks.
+
+    Input and reshaded share their samples, but their paths part wherever a glossy
+    surface sends the two primary rays' bounces apart; that part of the difference is
+    noise the input cannot predict. The ground truth input + mean change keeps the
+    input's own noise (a network must not try to remove it) and divides the variance
+    of the change by `seeds`.
+    """
+    from .integrator import render_image
+
+    total = first["reshaded"] - first["input"]
+    invalid = first["invalid"].copy()
+    for k in range(1, seeds):
+        sample_seed = (seed + k) % 2**31
+        image = render_image(scene, camera, spp, sample_seed, path)[..., :3]
+        truth = render_image(scene, camera, spp, sample_seed, reshade)
+        total += truth[..., :3] - image
+        invalid = np.maximum(invalid, truth[..., 3])
+    return total / seeds, invalid
 
 
 def brightness_scale(image: np.ndarray) -> float:
@@ -196,19 +231,46 @@ def is_complete(out_dir: str, ex_id: str) -> bool:
     return os.path.isfile(os.path.join(out_dir, ex_id, "meta.json"))
 
 
+@dataclass
+class ExampleSetup:
+    """Everything example (seed, index) draws before rendering: scene, cameras, sample seed."""
+
+    params: dict
+    scene: object
+    cam: dict
+    input_cam: Camera
+    novel_cam: Camera
+    offset: np.ndarray
+    render_seed: int
+
+
+def setup_example(mi, source, seed: int, index: int, settings: RenderSettings) -> ExampleSetup:
+    rng = example_rng(seed, index)
+    params, scene, cam = source.make(mi, rng, settings.width, settings.height)
+    input_cam = make_camera(cam, settings.width, settings.height)
+    offset = sample_shell(rng, settings.radius_min, settings.radius_max)
+    render_seed = int(example_rng(seed, index, 1).integers(2**31))
+    return ExampleSetup(
+        params, scene, cam, input_cam, input_cam.translated(offset), offset, render_seed
+    )
+
+
 def render_example(mi, source, out_dir: str, seed: int, index: int, settings: RenderSettings):
     """Render and write example (seed, index) of `source`; returns its meta dict."""
     timings: dict = {}
     start = time.perf_counter()
-    rng = example_rng(seed, index)
-    params, scene, cam = source.make(mi, rng, settings.width, settings.height)
+    ex = setup_example(mi, source, seed, index, settings)
     timings["scene"] = time.perf_counter() - start
-    input_cam = make_camera(cam, settings.width, settings.height)
-    offset = sample_shell(rng, settings.radius_min, settings.radius_max)
-    novel_cam = input_cam.translated(offset)
-    render_seed = int(example_rng(seed, index, 1).integers(2**31))
     views = render_views(
-        mi, scene, input_cam, novel_cam, settings.spp, render_seed, params["max_depth"], timings
+        mi,
+        ex.scene,
+        ex.input_cam,
+        ex.novel_cam,
+        settings.spp,
+        ex.render_seed,
+        ex.params["max_depth"],
+        timings,
+        settings.change_seeds,
     )
     scale = brightness_scale(views["input"])
     for name in ("input", "reshaded", "novel"):
@@ -222,14 +284,15 @@ def render_example(mi, source, out_dir: str, seed: int, index: int, settings: Re
         "width": settings.width,
         "height": settings.height,
         "spp": settings.spp,
-        "render_seed": render_seed,
-        "input_camera": input_cam.meta(),
-        "novel_camera": novel_cam.meta(),
-        "novel_offset": [float(v) for v in offset],
+        "change_seeds": settings.change_seeds,
+        "render_seed": ex.render_seed,
+        "input_camera": ex.input_cam.meta(),
+        "novel_camera": ex.novel_cam.meta(),
+        "novel_offset": [float(v) for v in ex.offset],
         "invalid_fraction": float((views["invalid"] > 0).mean()),
         "scene": {
-            **params,
-            "camera": cam,
+            **ex.params,
+            "camera": ex.cam,
             "brightness_scale": scale,
             "target_median": TARGET_MEDIAN,
         },

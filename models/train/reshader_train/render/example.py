@@ -175,6 +175,16 @@ def render_views(
     return out
 
 
+def seed_pairs(scene, camera, spp, seeds, path, reshade):
+    """(input RGB, reshaded RGB + AOVs) rendered with each sample seed of `seeds`."""
+    from .integrator import render_image
+
+    for sample_seed in seeds:
+        sample_seed %= 2**31
+        image = render_image(scene, camera, spp, sample_seed, path)[..., :3]
+        yield image, render_image(scene, camera, spp, sample_seed, reshade)
+
+
 def denoised_change(scene, camera, spp, seed, seeds, path, reshade, first):
     """Mean of (reshaded - input) over `seeds` sample seeds (the first already rendered in
     `first`), and the union of their invalid masks.
@@ -185,14 +195,10 @@ def denoised_change(scene, camera, spp, seed, seeds, path, reshade, first):
     input's own noise (a network must not try to remove it) and divides the variance
     of the change by `seeds`.
     """
-    from .integrator import render_image
-
     total = first["reshaded"] - first["input"]
     invalid = first["invalid"].copy()
-    for k in range(1, seeds):
-        sample_seed = (seed + k) % 2**31
-        image = render_image(scene, camera, spp, sample_seed, path)[..., :3]
-        truth = render_image(scene, camera, spp, sample_seed, reshade)
+    extra = range(seed + 1, seed + seeds)
+    for image, truth in seed_pairs(scene, camera, spp, extra, path, reshade):
         total += truth[..., :3] - image
         invalid = np.maximum(invalid, truth[..., 3])
     return total / seeds, invalid

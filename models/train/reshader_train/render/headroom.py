@@ -33,7 +33,7 @@ import torch
 from ..evaluate import format_table, masked_mse, masked_ssim, psnr_of_mse, summarise
 from ..tonemap import EVAL_EXPOSURE, EVAL_GAMMA, tonemap
 from .command import parse_settings, release_caches
-from .example import brightness_scale, setup_example
+from .example import brightness_scale, seed_pairs, setup_example
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -61,19 +61,16 @@ def _chw(hdr: np.ndarray) -> torch.Tensor:
 
 def example_row(mi, source, seed: int, index: int, settings, repeats: int) -> dict:
     """Input / Oracle / Noise metrics of one example against its ground truth."""
-    from .integrator import make_path, make_reshade, render_image
+    from .integrator import make_path, make_reshade
 
     ex = setup_example(mi, source, seed, index, settings)
     path = make_path(ex.params["max_depth"])
     reshade = make_reshade(ex.novel_cam, ex.input_cam, ex.params["max_depth"])
-    inputs, truths, invalid = [], [], None
-    for k in range(repeats + 1):
-        sample_seed = (ex.render_seed + k) % 2**31
-        image = render_image(ex.scene, ex.input_cam, settings.spp, sample_seed, path)
-        inputs.append(image[..., :3])
-        truth = render_image(ex.scene, ex.input_cam, settings.spp, sample_seed, reshade)
-        truths.append(truth[..., :3])
-        invalid = truth[..., 3] if invalid is None else invalid
+    seeds = range(ex.render_seed, ex.render_seed + repeats + 1)
+    pairs = list(seed_pairs(ex.scene, ex.input_cam, settings.spp, seeds, path, reshade))
+    inputs = [image for image, _ in pairs]
+    truths = [truth[..., :3] for _, truth in pairs]
+    invalid = pairs[0][1][..., 3]
     scale = brightness_scale(inputs[0])
     change = np.mean([t - i for t, i in zip(truths[1:], inputs[1:], strict=True)], axis=0)
     target = _chw(truths[0] * scale)

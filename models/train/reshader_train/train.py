@@ -30,6 +30,7 @@ from .evaluate import masked_psnr, reshade
 from .features import CHOICES, FeatureNetError
 from .losses import LossWeights, ReshadeLoss, make_loss
 from .model import NetConfig, ReshadeNet, count_parameters, net_config
+from .onnx_weights import load_onnx_weights
 
 CHECKPOINT = "checkpoint.pt"
 LOG_FIELDS = ("step", "lr", "loss", "pixel", "vgg", "style", "examples", "steps_per_s", "elapsed_s")
@@ -73,6 +74,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         choices=("auto", "float32", "bfloat16"),
         default="auto",
         help="perceptual network precision (auto: bfloat16 where the device runs it fast)",
+    )
+    p.add_argument(
+        "--init-from",
+        type=Path,
+        nargs="+",
+        help="start from the weights of exported fp32 ONNX files (e.g. a shipped model's "
+        "encoder and decoder) instead of random ones; ignored when the run resumes",
     )
     p.add_argument("--checkpoint-every", type=int, default=500)
     p.add_argument("--log-every", type=int, default=20)
@@ -369,11 +377,21 @@ def train(args: argparse.Namespace) -> ReshadeNet:
     net = ReshadeNet(net_config(args.size)).to(d.device)
     opt = torch.optim.Adam(net.parameters(), lr=args.lr)
     step = restore(args.run_dir, net, opt, criterion.ident, d)
+    if step == 0 and args.init_from:
+        count = load_onnx_weights(net, args.init_from)
+        if d.main:
+            print(f"initialised {count} parameters from {len(args.init_from)} ONNX file(s)")
     model = net
     if d.world > 1:
         ids = [d.device.index] if d.device.type == "cuda" else None
         model = DistributedDataParallel(net, device_ids=ids)
-    args_json = {k: str(v) if isinstance(v, Path) else v for k, v in vars(args).items()}
+
+    def plain(v):
+        return (
+            [plain(x) for x in v] if isinstance(v, list) else str(v) if isinstance(v, Path) else v
+        )
+
+    args_json = {k: plain(v) for k, v in vars(args).items()}
     meta = {
         "feature_net": criterion.ident,
         "feature_precision": str(criterion.feature_dtype).removeprefix("torch."),

@@ -300,3 +300,39 @@ def test_committed_fixture_is_consistent():
             assert np.abs(got[0] - ref).max() <= p["tolerance"], precision
     dep = parity["camera_dependence"]
     assert dep["max_abs_between_cameras"] > 100 * parity["precisions"]["fp32"]["tolerance"]
+
+
+def test_training_can_start_from_an_exported_fp32_pair(exported, tmp_path):
+    from reshader_train.onnx_weights import load_onnx_weights
+
+    torch.manual_seed(3)
+    trained = ReshadeNet(net_config(TINY)).eval()
+    with torch.no_grad():
+        for p in trained.parameters():
+            # Trained weights: no two tensors alike (the exporter merges identical ones,
+            # such as the zero biases of a fresh network, under one name).
+            p.normal_(std=0.1)
+    info = ExportInfo(size="tiny", validation={})
+    export_precision(trained, "fp32", tmp_path, "trained", info, True, H, W)
+    pair = [tmp_path / "trained-encoder.onnx", tmp_path / "trained-decoder.onnx"]
+    for files in (pair, [tmp_path / "trained.onnx"]):
+        net = ReshadeNet(net_config(TINY))
+        assert load_onnx_weights(net, files) == len(list(net.parameters()))
+        for (name, got), want in zip(net.named_parameters(), trained.parameters(), strict=True):
+            assert torch.equal(got, want), name
+    with pytest.raises(ValueError, match="fp32"):  # a half-precision export is refused
+        load_onnx_weights(
+            ReshadeNet(net_config(TINY)),
+            [
+                exported / "reshade-tiny-fp16-encoder.onnx",
+                exported / "reshade-tiny-fp16-decoder.onnx",
+            ],
+        )
+    with pytest.raises(ValueError, match="network wants"):
+        load_onnx_weights(ReshadeNet(net_config("8,8,8,8,8,8")), pair)
+    with pytest.raises(ValueError, match="no weights for"):
+        load_onnx_weights(ReshadeNet(net_config(TINY)), pair[:1])
+    junk = tmp_path / "junk.onnx"
+    junk.write_bytes(b"not a model")
+    with pytest.raises(ValueError, match="junk.onnx"):
+        load_onnx_weights(ReshadeNet(net_config(TINY)), [junk])

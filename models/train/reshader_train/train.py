@@ -362,6 +362,13 @@ def train_step(model, criterion: ReshadeLoss, opt, batch: dict, lr: float, d: Di
     return parts
 
 
+def _json_value(value):
+    """An argument as JSON can hold it: paths (also in lists, e.g. --init-from) as text."""
+    if isinstance(value, list):
+        return [_json_value(v) for v in value]
+    return str(value) if isinstance(value, Path) else value
+
+
 def train(args: argparse.Namespace) -> ReshadeNet:
     """Runs (or resumes) training and returns the trained network (unwrapped)."""
     d = setup_distributed(args.device)
@@ -385,13 +392,7 @@ def train(args: argparse.Namespace) -> ReshadeNet:
     if d.world > 1:
         ids = [d.device.index] if d.device.type == "cuda" else None
         model = DistributedDataParallel(net, device_ids=ids)
-
-    def plain(v):
-        return (
-            [plain(x) for x in v] if isinstance(v, list) else str(v) if isinstance(v, Path) else v
-        )
-
-    args_json = {k: plain(v) for k, v in vars(args).items()}
+    args_json = {k: _json_value(v) for k, v in vars(args).items()}
     meta = {
         "feature_net": criterion.ident,
         "feature_precision": str(criterion.feature_dtype).removeprefix("torch."),

@@ -18,8 +18,25 @@ pub struct TractEngine {
     executor: Executor,
 }
 
+/// tract 0.23.9's AMX int8 kernels crash now and then on Intel CPUs that have AMX
+/// (SIGSEGV at a `tileloadd` on a worker thread: about one run in six of the int8 depth
+/// network on this project's machines), so they are left out of tract's kernel pool
+/// before any plan picks its kernels. This is a default below the environment: a user's
+/// own `TRACT_CPU_ISA` still wins.
+fn avoid_amx_kernels() {
+    static ONCE: std::sync::Once = std::sync::Once::new();
+    ONCE.call_once(|| {
+        if let Err(e) =
+            tract_onnx::tract_core::knobs::set_config_global("TRACT_CPU_ISA", "-amx-int8,-amx-bf16")
+        {
+            log::warn!("could not take tract's AMX kernels out: {e}");
+        }
+    });
+}
+
 impl TractEngine {
     pub fn new(threads: usize) -> Self {
+        avoid_amx_kernels();
         let threads = threads.max(1);
         let executor = if threads > 1 {
             Executor::multithread_with_name(threads, "reshader-tract")

@@ -368,6 +368,35 @@ def test_a_procedural_scene_loads_its_emitters_in_the_same_order_every_time(mi):
     assert len(orders) == 1, orders
 
 
+def test_the_highlights_family_draws_curved_glossy_tabletops_under_a_sun():
+    from reshader_train.render import procedural
+
+    def draw(family, i):
+        return procedural.sample_scene(np.random.default_rng([3, i]), family)
+
+    scenes = [draw("highlights", i) for i in range(40)]
+    assert all(s["kind"] == "tabletop" and s["family"] == "highlights" for s in scenes)
+    assert all(3 <= s["max_depth"] <= 4 and max(s["sky"]["sun_radiance"]) > 0 for s in scenes)
+    objects = [o for s in scenes for o in s["objects"] if o["shape"] != "table"]
+    assert objects and all(o["shape"] in procedural.CURVED for o in objects)
+    assert all(o["material"]["type"] in procedural.GLOSSY for o in objects)
+    assert {s["ground_material"]["type"] for s in scenes} <= {"diffuse", "roughplastic"}
+    mixed = [draw("mixed", i) for i in range(40)]
+    assert {s["kind"] for s in mixed} == {"room", "tabletop"}
+    assert "family" not in mixed[0]
+
+
+def test_render_command_renders_the_highlights_family_from_close_by(mi, tmp_path):
+    out = str(tmp_path / "data")
+    args = ["render", "--out", out, "--count", "2", "--size", "16x12", "--spp", "2"]
+    assert run_cli(*args, "--scenes", "procedural:highlights") == 0
+    for ex in sorted(os.listdir(out)):
+        scene = json.load(open(os.path.join(out, ex, "meta.json")))["scene"]
+        assert scene["family"] == "highlights" and scene["kind"] == "tabletop"
+        cam = scene["camera"]
+        assert 0.8 <= math.dist(cam["position"], cam["target"]) <= 2.5
+
+
 def test_render_command_with_one_thread_completes(tmp_path):
     # Mitsuba's EXR writer deadlocks with a one-thread pool unless the writer works
     # around it; the timeout only guards against that hang.
@@ -451,6 +480,10 @@ def test_bad_inputs_give_clear_errors(mi, tmp_path, capsys):
     assert "--shard" in capsys.readouterr().err
     assert run_cli("render", "--out", str(tmp_path), "--count", "1", "--change-seeds", "0") == 2
     assert "--change-seeds" in capsys.readouterr().err
+    shiny = ("--scenes", "procedural:shiny")
+    assert run_cli("render", "--out", str(tmp_path), "--count", "1", *shiny) == 2
+    err = capsys.readouterr().err
+    assert "'shiny'" in err and "highlights" in err
 
 
 def test_sheet_shows_every_example(mi, tmp_path):

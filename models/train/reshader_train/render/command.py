@@ -33,7 +33,10 @@ def add_arguments(parser) -> None:
     parser.add_argument(
         "--scenes",
         default="procedural",
-        help="'procedural' (default) or a Mitsuba 3 scene file (.xml)",
+        help="'procedural' (default: rooms and tabletops of every material), "
+        "'procedural:highlights' (curved glossy objects on tabletops under a sun and orbs, "
+        "seen from close by: the family the shipped model learns from) or a Mitsuba 3 "
+        "scene file (.xml)",
     )
     parser.add_argument("--count", type=int, required=True, help="examples in the dataset")
     parser.add_argument("--seed", type=int, default=0, help="dataset seed (default 0)")
@@ -69,10 +72,10 @@ def add_arguments(parser) -> None:
 def _source(args):
     from .sources import ProceduralSource, SceneFileSource
 
-    if args.scenes == "procedural":
+    if args.scenes == "procedural" or args.scenes.startswith("procedural:"):
         if args.randomize_materials or args.orbs is not None:
             raise ValueError("--randomize-materials and --orbs apply to scene files only")
-        return ProceduralSource()
+        return ProceduralSource(args.scenes.partition(":")[2] or "mixed")
     return SceneFileSource(args.scenes, args.randomize_materials, args.orbs or 0)
 
 

@@ -50,6 +50,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--radius", default="0.1,0.3", help="novel camera shell radii MIN,MAX (default 0.1,0.3)"
     )
+    p.add_argument(
+        "--family",
+        default="mixed",
+        help="procedural scene family: mixed (default) or highlights (see render --scenes)",
+    )
     p.add_argument("--threads", type=int, default=None, help="Dr.Jit threads (default all)")
     p.add_argument("--json", type=Path, help="write the summary and per-example rows as JSON")
 
@@ -99,15 +104,16 @@ def run(args: argparse.Namespace) -> int:
         if args.repeats < 1:
             raise ValueError("--repeats must be at least 1")
         settings = parse_settings(args)
+        source = ProceduralSource(args.family)
         mi = load_mitsuba(args.threads)
     except (ValueError, LlvmNotFound) as err:
         print(f"reshader-train headroom: {err}", file=sys.stderr)
         return 2
-    source = ProceduralSource()
     source.prepare(mi)
     print(
-        f"headroom: seed {args.seed}, examples 0..{args.count - 1}, {args.size} at {args.spp} "
-        f"spp, {args.repeats} extra sample seeds ({2 * (args.repeats + 1)} renders each)",
+        f"headroom: {source.name}, seed {args.seed}, examples 0..{args.count - 1}, "
+        f"{args.size} at {args.spp} spp, {args.repeats} extra sample seeds "
+        f"({2 * (args.repeats + 1)} renders each)",
         flush=True,
     )
     start = time.perf_counter()

@@ -14,10 +14,18 @@ from .materials import OPAQUE, material_dict, random_colour, sample_material
 from .textures import make_sky
 
 SHAPES = ("sphere", "cube", "cylinder", "torus", "blob", "vase")
+# Scene families. "mixed" is everything the generator makes. "highlights" narrows it to
+# what a small network can learn from a few hundred examples: curved glossy objects on
+# a tabletop under a sun and coloured orbs, seen from close by. Mirrors reflecting unseen
+# surroundings and glass are left out; their change between cameras is mostly unknowable
+# from one photo.
+FAMILIES = ("mixed", "highlights")
+GLOSSY = ("plastic", "roughplastic", "principled", "roughconductor")
+CURVED = ("sphere", "cylinder", "torus", "blob", "vase")
 
 
-def _sample_sky(rng: np.random.Generator, intensity: tuple[float, float]) -> dict:
-    sun = rng.uniform() < 0.6
+def _sample_sky(rng: np.random.Generator, intensity: tuple[float, float], sun_p=0.6) -> dict:
+    sun = rng.uniform() < sun_p
     return {
         "zenith": random_colour(rng, sat=(0.2, 0.8), val=(0.4, 1.0)),
         "horizon": random_colour(rng, sat=(0.0, 0.4), val=(0.6, 1.0)),
@@ -34,15 +42,16 @@ def _sample_sky(rng: np.random.Generator, intensity: tuple[float, float]) -> dic
     }
 
 
-def _sample_object(rng: np.random.Generator, support: float) -> dict:
-    shape = str(rng.choice(SHAPES))
+def _sample_object(rng: np.random.Generator, support: float, family: str) -> dict:
+    highlights = family == "highlights"
+    shape = str(rng.choice(CURVED if highlights else SHAPES))
     size = float(rng.uniform(0.15, 0.6))
     obj = {
         "shape": shape,
         "size": size,
         "yaw": float(rng.uniform(0, 2 * math.pi)),
         "support": support,
-        "material": sample_material(rng),
+        "material": sample_material(rng, GLOSSY if highlights else None),
     }
     if shape == "cube":
         obj["extent"] = [float(v) for v in size * rng.uniform(0.4, 1.0, 3)]
@@ -104,10 +113,16 @@ def _place(rng, objects: list, obj: dict, centre, spread: float, bounds) -> bool
     return False
 
 
-def sample_scene(rng: np.random.Generator) -> dict:
-    """Every random choice of one procedural scene (cameras are chosen later)."""
-    kind = "room" if rng.uniform() < 0.7 else "tabletop"
-    scene: dict = {"kind": kind, "max_depth": int(rng.integers(4, 8))}
+def sample_scene(rng: np.random.Generator, family: str = "mixed") -> dict:
+    """Every random choice of one procedural scene of `family` (cameras are chosen later)."""
+    if family not in FAMILIES:
+        raise ValueError(f"unknown scene family {family!r}: expected one of {FAMILIES}")
+    highlights = family == "highlights"
+    kind = "room" if rng.uniform() < (0.0 if highlights else 0.7) else "tabletop"
+    depths = (3, 5) if highlights else (4, 8)
+    scene: dict = {"kind": kind, "max_depth": int(rng.integers(*depths))}
+    if highlights:
+        scene["family"] = family
     if kind == "room":
         w, d, h = rng.uniform(3.5, 8.0), rng.uniform(3.5, 8.0), rng.uniform(2.5, 3.5)
         scene["room"] = {
@@ -122,10 +137,11 @@ def sample_scene(rng: np.random.Generator) -> dict:
         bounds = (-w / 2, w / 2, -d / 2, d / 2)
         scene["sky"] = _sample_sky(rng, (0.3, 2.0))
     else:
-        scene["ground_material"] = sample_material(rng, OPAQUE)
+        ground = ("diffuse", "roughplastic") if highlights else OPAQUE
+        scene["ground_material"] = sample_material(rng, ground)
         bounds = (-10.0, 10.0, -10.0, 10.0)
         h = 6.0
-        scene["sky"] = _sample_sky(rng, (0.5, 3.0))
+        scene["sky"] = _sample_sky(rng, (0.5, 3.0), 1.0 if highlights else 0.6)
     scene["bounds"] = [float(v) for v in bounds] + [0.0, float(h)]
 
     cx = rng.uniform(bounds[0] * 0.4, bounds[1] * 0.4) if kind == "room" else 0.0
@@ -145,7 +161,7 @@ def sample_scene(rng: np.random.Generator) -> dict:
             support = table["height"] + 0.03
     for _ in range(int(rng.integers(3, 9))):
         on_table = support > 0 and rng.uniform() < 0.5
-        obj = _sample_object(rng, support if on_table else 0.0)
+        obj = _sample_object(rng, support if on_table else 0.0, family)
         if on_table:
             t = objects[0]
             tb = (

@@ -5,7 +5,14 @@ from .example import choose_procedural_camera
 
 
 class ProceduralSource:
-    name = "procedural"
+    def __init__(self, family: str = "mixed"):
+        if family not in procedural.FAMILIES:
+            raise ValueError(
+                f"unknown procedural family {family!r}: expected one of "
+                + ", ".join(procedural.FAMILIES)
+            )
+        self.family = family
+        self.name = "procedural" if family == "mixed" else f"procedural:{family}"
 
     def prepare(self, mi) -> None:
         """Nothing to load up front."""
@@ -13,7 +20,7 @@ class ProceduralSource:
     def make(self, mi, rng, width: int, height: int):
         """(scene parameters, Mitsuba scene, camera parameters) for one example."""
         for _ in range(10):
-            params = procedural.sample_scene(rng)
+            params = procedural.sample_scene(rng, self.family)
             if not params["objects"]:
                 continue
             scene = procedural.build_scene(mi, params)

@@ -397,6 +397,27 @@ def test_render_command_renders_the_highlights_family_from_close_by(mi, tmp_path
         assert 0.8 <= math.dist(cam["position"], cam["target"]) <= 2.5
 
 
+def test_layouts_are_re_dressed_and_shared_between_data_sets(mi, tmp_path):
+    def scenes(seed, count):
+        out = str(tmp_path / f"seed{seed}")
+        args = ["render", "--out", out, "--count", str(count), "--size", "16x12", "--spp", "2"]
+        assert run_cli(*args, "--seed", str(seed), "--scenes", "procedural:highlights",
+                       "--layouts", "2") == 0  # fmt: skip
+        return [json.load(open(os.path.join(out, e, "meta.json")))["scene"]
+                for e in sorted(os.listdir(out))]  # fmt: skip
+
+    def layout(scene):
+        return [(o["shape"], o["position"]) for o in scene["objects"]], scene["sky"]
+
+    train, val = scenes(1, 3), scenes(2, 1)
+    assert [s["layout"] for s in train] == [0, 1, 0]
+    assert layout(train[0]) == layout(train[2]) == layout(val[0])
+    assert layout(train[0]) != layout(train[1])
+    materials = [[o["material"] for o in s["objects"]] for s in (train[0], train[2], val[0])]
+    assert materials[0] != materials[1] and materials[0] != materials[2]
+    assert train[0]["camera"] != train[2]["camera"] and train[0]["orbs"] != train[2]["orbs"]
+
+
 def test_render_command_with_one_thread_completes(tmp_path):
     # Mitsuba's EXR writer deadlocks with a one-thread pool unless the writer works
     # around it; the timeout only guards against that hang.
@@ -480,6 +501,13 @@ def test_bad_inputs_give_clear_errors(mi, tmp_path, capsys):
     assert "--shard" in capsys.readouterr().err
     assert run_cli("render", "--out", str(tmp_path), "--count", "1", "--change-seeds", "0") == 2
     assert "--change-seeds" in capsys.readouterr().err
+    xml = tmp_path / "one.xml"
+    xml.write_text('<scene version="3.0.0"><shape type="sphere"/></scene>')
+    assert run_cli("render", "--out", str(tmp_path), "--count", "1", "--scenes", str(xml),
+                   "--layouts", "2") == 2  # fmt: skip
+    assert "--layouts" in capsys.readouterr().err
+    assert run_cli("render", "--out", str(tmp_path), "--count", "1", "--layouts", "-1") == 2
+    assert "--layouts" in capsys.readouterr().err
     shiny = ("--scenes", "procedural:shiny")
     assert run_cli("render", "--out", str(tmp_path), "--count", "1", *shiny) == 2
     err = capsys.readouterr().err

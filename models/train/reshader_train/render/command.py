@@ -60,6 +60,21 @@ def add_arguments(parser) -> None:
         "reshaded render of the input's seed); costs 2 more renders per extra seed",
     )
     parser.add_argument(
+        "--layouts",
+        type=int,
+        default=0,
+        help="procedural: example i re-dresses layout i mod K (geometry, sky and area lights "
+        "fixed; materials, orbs and cameras new), as the paper re-dresses its 9 scenes "
+        "(default 0: a new scene per example)",
+    )
+    parser.add_argument(
+        "--layout-seed",
+        type=int,
+        default=0,
+        help="seed of the layouts, independent of --seed so that train and validation "
+        "sets share them (default 0)",
+    )
+    parser.add_argument(
         "--randomize-materials",
         action="store_true",
         help="scene files: replace every material by a random one per example",
@@ -75,7 +90,11 @@ def _source(args):
     if args.scenes == "procedural" or args.scenes.startswith("procedural:"):
         if args.randomize_materials or args.orbs is not None:
             raise ValueError("--randomize-materials and --orbs apply to scene files only")
-        return ProceduralSource(args.scenes.partition(":")[2] or "mixed")
+        return ProceduralSource(
+            args.scenes.partition(":")[2] or "mixed", args.layouts, args.layout_seed
+        )
+    if args.layouts:
+        raise ValueError("--layouts applies to procedural scenes only")
     return SceneFileSource(args.scenes, args.randomize_materials, args.orbs or 0)
 
 

@@ -254,7 +254,7 @@ class ExampleSetup:
 
 def setup_example(mi, source, seed: int, index: int, settings: RenderSettings) -> ExampleSetup:
     rng = example_rng(seed, index)
-    params, scene, cam = source.make(mi, rng, settings.width, settings.height)
+    params, scene, cam = source.make(mi, rng, settings.width, settings.height, index)
     input_cam = make_camera(cam, settings.width, settings.height)
     offset = sample_shell(rng, settings.radius_min, settings.radius_max)
     render_seed = int(example_rng(seed, index, 1).integers(2**31))

@@ -5,6 +5,7 @@
 2.5-3.5 high; the camera stands 1-4.5 units from the object it looks at.
 """
 
+import copy
 import math
 
 import numpy as np
@@ -208,6 +209,28 @@ def sample_scene(rng: np.random.Generator, family: str = "mixed") -> dict:
         )
 
     scene["orbs"] = sample_orbs(rng, bounds, (0.15, h - 0.3), objects, (cx, cz))
+    return scene
+
+
+def restyle(rng: np.random.Generator, layout: dict) -> dict:
+    """`layout` with new materials and orbs, as the paper re-draws the materials of its fixed
+    scenes for every pair: geometry, sky and area lights stay."""
+    scene = copy.deepcopy(layout)
+    highlights = scene.get("family") == "highlights"
+    for obj in scene["objects"]:
+        table = obj["shape"] == "table"
+        obj["material"] = sample_material(rng, OPAQUE if table else GLOSSY if highlights else None)
+    if "ground_material" in scene:
+        ground = ("diffuse", "roughplastic") if highlights else OPAQUE
+        scene["ground_material"] = sample_material(rng, ground)
+    if "room" in scene:
+        room = scene["room"]
+        for key in ("floor_material", "wall_material"):
+            room[key] = sample_material(rng, ("diffuse", "roughplastic", "principled"))
+        room["ceiling_material"] = sample_material(rng, ("diffuse",))
+    x0, x1, z0, z1, _, h = scene["bounds"]
+    centre = np.mean([o["position"] for o in scene["objects"]], axis=0)[[0, 2]]
+    scene["orbs"] = sample_orbs(rng, (x0, x1, z0, z1), (0.15, h - 0.3), scene["objects"], centre)
     return scene
 
 

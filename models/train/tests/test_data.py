@@ -88,7 +88,7 @@ def fake_example(h=16, w=16):
 def test_augmentation_is_consistent():
     ex = fake_example()
     for seed in range(5):
-        s = make_sample(ex, None, np.random.default_rng(seed), Augment(flip=False))
+        s = make_sample(ex, None, np.random.default_rng(seed), Augment(flip=False, still=0.0))
         # Same exposure and gamma on both: identical HDR gives identical LDR.
         assert torch.equal(s["image"], s["target"])
         assert 0.0 <= float(s["image"].min()) and float(s["image"].max()) <= 1.0
@@ -100,6 +100,17 @@ def test_augmentation_is_consistent():
             s["disparity"][0][unclamped], f * torch.from_numpy(ex.disparity)[unclamped], rtol=1e-5
         )
         assert torch.allclose(s["camera"] * f, torch.from_numpy(ex.offset), rtol=1e-5)
+
+
+def test_still_samples_are_the_photo_from_its_own_camera():
+    ex = fake_example()
+    ex.reshaded[:] = ex.input * 1.5  # a change that a still sample must not carry
+    ex.mask[0, 0] = False
+    s = make_sample(ex, None, np.random.default_rng(0), Augment(still=1.0))
+    assert torch.equal(s["target"], s["image"])
+    assert torch.count_nonzero(s["camera"]) == 0 and bool(s["mask"].all())
+    moved = make_sample(ex, None, np.random.default_rng(0), Augment(still=0.0))
+    assert not torch.equal(moved["target"], moved["image"])
 
 
 def test_flip_mirrors_image_and_camera():

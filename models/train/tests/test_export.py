@@ -258,7 +258,13 @@ def test_quantize_fine_tunes_and_exports_qat(data, tmp_path):
     assert cli.main(argv) == 0
     state = torch.load(qat, weights_only=False)
     assert state["quantization"]["method"] == "qat"
-    assert set(state["validation"]) == {"fp32", "int8_ptq", "int8_qat"}
+    assert set(state["validation"]) == {
+        "fp32",
+        "int8_ptq",
+        "int8_ptq_weights",
+        "int8_qat",
+        "int8_qat_weights",
+    }
     moved = (
         state["model"]["encoder.blocks.0.0.conv.weight"]
         - net.state_dict()["encoder.blocks.0.0.weight"]

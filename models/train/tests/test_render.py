@@ -368,7 +368,7 @@ def test_a_procedural_scene_loads_its_emitters_in_the_same_order_every_time(mi):
     assert len(orders) == 1, orders
 
 
-def test_the_highlights_family_draws_curved_glossy_tabletops_under_a_sun():
+def test_the_highlights_and_studio_families_draw_curved_glossy_tabletops_under_a_sun():
     from reshader_train.render import procedural
 
     def draw(family, i):
@@ -381,6 +381,11 @@ def test_the_highlights_family_draws_curved_glossy_tabletops_under_a_sun():
     assert objects and all(o["shape"] in procedural.CURVED for o in objects)
     assert all(o["material"]["type"] in procedural.GLOSSY for o in objects)
     assert {s["ground_material"]["type"] for s in scenes} <= {"diffuse", "roughplastic"}
+    studio = [draw("studio", i) for i in range(10)]
+    for s in studio:
+        sky = s["sky"]
+        assert sky["zenith"] == sky["horizon"] == sky["ground"] and sky["intensity"] <= 0.1
+        assert max(sky["sun_radiance"]) > 0 and s["kind"] == "tabletop"
     mixed = [draw("mixed", i) for i in range(40)]
     assert {s["kind"] for s in mixed} == {"room", "tabletop"}
     assert "family" not in mixed[0]

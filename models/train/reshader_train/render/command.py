@@ -35,7 +35,8 @@ def add_arguments(parser) -> None:
         default="procedural",
         help="'procedural' (default: rooms and tabletops of every material), "
         "'procedural:highlights' (curved glossy objects on tabletops under a sun and orbs, "
-        "seen from close by: the family the shipped model learns from) or a Mitsuba 3 "
+        "seen from close by), 'procedural:studio' (the same under a dim uniform "
+        "environment, lit by the sun and orbs: the shipped model's data) or a Mitsuba 3 "
         "scene file (.xml)",
     )
     parser.add_argument("--count", type=int, required=True, help="examples in the dataset")

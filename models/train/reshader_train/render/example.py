@@ -80,11 +80,11 @@ def view_hits(scene, camera: Camera, grid: int = 8) -> np.ndarray:
 
 
 def choose_procedural_camera(rng, scene, params: dict, width: int, height: int) -> dict:
-    """Look at a random object from 1-4.5 units (0.8-2.5 for the "highlights" family, so
-    that its highlights cover more pixels); the camera stands in free space."""
+    """Look at a random object from 1-4.5 units (0.8-2.5 for the "highlights" and "studio"
+    families, so that highlights cover more pixels); the camera stands in free space."""
     x0, x1, z0, z1, y0, y1 = params["bounds"]
     margin = CLEARANCE + 0.1
-    near, far = (0.8, 2.5) if params.get("family") == "highlights" else (1.0, 4.5)
+    near, far = (0.8, 2.5) if params.get("family") in ("highlights", "studio") else (1.0, 4.5)
     for _ in range(200):
         obj = params["objects"][int(rng.integers(len(params["objects"])))]
         target = np.array(obj["position"]) + [0.0, 0.3, 0.0] + rng.normal(0, 0.1, 3)

@@ -20,7 +20,11 @@ SHAPES = ("sphere", "cube", "cylinder", "torus", "blob", "vase")
 # a tabletop under a sun and coloured orbs, seen from close by. Mirrors reflecting unseen
 # surroundings and glass are left out; their change between cameras is mostly unknowable
 # from one photo.
-FAMILIES = ("mixed", "highlights")
+# "studio" is "highlights" under a dim uniform environment: the sun and the orbs light the
+# scene, so that what changes between cameras is mostly their highlights, which a network
+# can predict from the photo, rather than reflections of a sky it cannot see.
+FAMILIES = ("mixed", "highlights", "studio")
+GLOSSY_FAMILIES = ("highlights", "studio")
 GLOSSY = ("plastic", "roughplastic", "principled", "roughconductor")
 CURVED = ("sphere", "cylinder", "torus", "blob", "vase")
 
@@ -44,7 +48,7 @@ def _sample_sky(rng: np.random.Generator, intensity: tuple[float, float], sun_p=
 
 
 def _sample_object(rng: np.random.Generator, support: float, family: str) -> dict:
-    highlights = family == "highlights"
+    highlights = family in GLOSSY_FAMILIES
     shape = str(rng.choice(CURVED if highlights else SHAPES))
     size = float(rng.uniform(0.15, 0.6))
     obj = {
@@ -118,7 +122,7 @@ def sample_scene(rng: np.random.Generator, family: str = "mixed") -> dict:
     """Every random choice of one procedural scene of `family` (cameras are chosen later)."""
     if family not in FAMILIES:
         raise ValueError(f"unknown scene family {family!r}: expected one of {FAMILIES}")
-    highlights = family == "highlights"
+    highlights = family in GLOSSY_FAMILIES
     kind = "room" if rng.uniform() < (0.0 if highlights else 0.7) else "tabletop"
     depths = (3, 5) if highlights else (4, 8)
     scene: dict = {"kind": kind, "max_depth": int(rng.integers(*depths))}
@@ -143,6 +147,10 @@ def sample_scene(rng: np.random.Generator, family: str = "mixed") -> dict:
         bounds = (-10.0, 10.0, -10.0, 10.0)
         h = 6.0
         scene["sky"] = _sample_sky(rng, (0.5, 3.0), 1.0 if highlights else 0.6)
+        if family == "studio":
+            grey = scene["sky"]["horizon"]
+            intensity = float(rng.uniform(0.02, 0.1))
+            scene["sky"].update(zenith=grey, ground=grey, intensity=intensity)
     scene["bounds"] = [float(v) for v in bounds] + [0.0, float(h)]
 
     cx = rng.uniform(bounds[0] * 0.4, bounds[1] * 0.4) if kind == "room" else 0.0
@@ -216,7 +224,7 @@ def restyle(rng: np.random.Generator, layout: dict) -> dict:
     """`layout` with new materials and orbs, as the paper re-draws the materials of its fixed
     scenes for every pair: geometry, sky and area lights stay."""
     scene = copy.deepcopy(layout)
-    highlights = scene.get("family") == "highlights"
+    highlights = scene.get("family") in GLOSSY_FAMILIES
     for obj in scene["objects"]:
         table = obj["shape"] == "table"
         obj["material"] = sample_material(rng, OPAQUE if table else GLOSSY if highlights else None)

@@ -541,7 +541,7 @@ class _TexturedRoom:
     def prepare(self, mi):
         pass
 
-    def make(self, mi, rng, width, height):
+    def make(self, mi, rng, width, height, index):
         from reshader_train.render.materials import material_dict
 
         tiles = {

@@ -36,7 +36,7 @@ def add_arguments(parser) -> None:
         help="'procedural' (default: rooms and tabletops of every material), "
         "'procedural:highlights' (curved glossy objects on tabletops under a sun and orbs, "
         "seen from close by), 'procedural:studio' (the same under a dim uniform "
-        "environment, lit by the sun and orbs: the shipped model's data) or a Mitsuba 3 "
+        "environment, lit by the sun and orbs) or a Mitsuba 3 "
         "scene file (.xml)",
     )
     parser.add_argument("--count", type=int, required=True, help="examples in the dataset")

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .cameras import Camera, look_at, sample_shell
+from .procedural import GLOSSY_FAMILIES
 
 # All three images are scaled so that the input's median luminance is this. The training
 # tone mapping (exposure x3..10, clip, gamma 2.2..5) then puts the median at 0.06..0.2
@@ -84,7 +85,7 @@ def choose_procedural_camera(rng, scene, params: dict, width: int, height: int) 
     families, so that highlights cover more pixels); the camera stands in free space."""
     x0, x1, z0, z1, y0, y1 = params["bounds"]
     margin = CLEARANCE + 0.1
-    near, far = (0.8, 2.5) if params.get("family") in ("highlights", "studio") else (1.0, 4.5)
+    near, far = (0.8, 2.5) if params.get("family") in GLOSSY_FAMILIES else (1.0, 4.5)
     for _ in range(200):
         obj = params["objects"][int(rng.integers(len(params["objects"])))]
         target = np.array(obj["position"]) + [0.0, 0.3, 0.0] + rng.normal(0, 0.1, 3)

@@ -27,6 +27,15 @@ FAMILIES = ("mixed", "highlights", "studio")
 GLOSSY_FAMILIES = ("highlights", "studio")
 GLOSSY = ("plastic", "roughplastic", "principled", "roughconductor")
 CURVED = ("sphere", "cylinder", "torus", "blob", "vase")
+GLOSSY_GROUNDS = ("diffuse", "roughplastic")
+ROOM_SURFACES = ("diffuse", "roughplastic", "principled")
+
+
+def check_family(family: str) -> None:
+    if family not in FAMILIES:
+        raise ValueError(
+            f"unknown procedural family {family!r}: expected one of " + ", ".join(FAMILIES)
+        )
 
 
 def _sample_sky(rng: np.random.Generator, intensity: tuple[float, float], sun_p=0.6) -> dict:
@@ -120,8 +129,7 @@ def _place(rng, objects: list, obj: dict, centre, spread: float, bounds) -> bool
 
 def sample_scene(rng: np.random.Generator, family: str = "mixed") -> dict:
     """Every random choice of one procedural scene of `family` (cameras are chosen later)."""
-    if family not in FAMILIES:
-        raise ValueError(f"unknown scene family {family!r}: expected one of {FAMILIES}")
+    check_family(family)
     highlights = family in GLOSSY_FAMILIES
     kind = "room" if rng.uniform() < (0.0 if highlights else 0.7) else "tabletop"
     depths = (3, 5) if highlights else (4, 8)
@@ -135,15 +143,12 @@ def sample_scene(rng: np.random.Generator, family: str = "mixed") -> dict:
             # Openings let the sky in; at least one of the walls or ceiling is open half the time.
             "walls": [bool(rng.uniform() < 0.85) for _ in range(4)],
             "ceiling": bool(rng.uniform() < 0.7),
-            "floor_material": sample_material(rng, ("diffuse", "roughplastic", "principled")),
-            "wall_material": sample_material(rng, ("diffuse", "roughplastic", "principled")),
-            "ceiling_material": sample_material(rng, ("diffuse",)),
+            **_room_materials(rng),
         }
         bounds = (-w / 2, w / 2, -d / 2, d / 2)
         scene["sky"] = _sample_sky(rng, (0.3, 2.0))
     else:
-        ground = ("diffuse", "roughplastic") if highlights else OPAQUE
-        scene["ground_material"] = sample_material(rng, ground)
+        scene["ground_material"] = sample_material(rng, GLOSSY_GROUNDS if highlights else OPAQUE)
         bounds = (-10.0, 10.0, -10.0, 10.0)
         h = 6.0
         scene["sky"] = _sample_sky(rng, (0.5, 3.0), 1.0 if highlights else 0.6)
@@ -220,6 +225,14 @@ def sample_scene(rng: np.random.Generator, family: str = "mixed") -> dict:
     return scene
 
 
+def _room_materials(rng: np.random.Generator) -> dict:
+    return {
+        "floor_material": sample_material(rng, ROOM_SURFACES),
+        "wall_material": sample_material(rng, ROOM_SURFACES),
+        "ceiling_material": sample_material(rng, ("diffuse",)),
+    }
+
+
 def restyle(rng: np.random.Generator, layout: dict) -> dict:
     """`layout` with new materials and orbs, as the paper re-draws the materials of its fixed
     scenes for every pair: geometry, sky and area lights stay."""
@@ -229,13 +242,9 @@ def restyle(rng: np.random.Generator, layout: dict) -> dict:
         table = obj["shape"] == "table"
         obj["material"] = sample_material(rng, OPAQUE if table else GLOSSY if highlights else None)
     if "ground_material" in scene:
-        ground = ("diffuse", "roughplastic") if highlights else OPAQUE
-        scene["ground_material"] = sample_material(rng, ground)
+        scene["ground_material"] = sample_material(rng, GLOSSY_GROUNDS if highlights else OPAQUE)
     if "room" in scene:
-        room = scene["room"]
-        for key in ("floor_material", "wall_material"):
-            room[key] = sample_material(rng, ("diffuse", "roughplastic", "principled"))
-        room["ceiling_material"] = sample_material(rng, ("diffuse",))
+        scene["room"].update(_room_materials(rng))
     x0, x1, z0, z1, _, h = scene["bounds"]
     centre = np.mean([o["position"] for o in scene["objects"]], axis=0)[[0, 2]]
     scene["orbs"] = sample_orbs(rng, (x0, x1, z0, z1), (0.15, h - 0.3), scene["objects"], centre)

@@ -16,11 +16,7 @@ class ProceduralSource:
     protocol of a few fixed scenes re-dressed for every pair."""
 
     def __init__(self, family: str = "mixed", layouts: int = 0, layout_seed: int = 0):
-        if family not in procedural.FAMILIES:
-            raise ValueError(
-                f"unknown procedural family {family!r}: expected one of "
-                + ", ".join(procedural.FAMILIES)
-            )
+        procedural.check_family(family)
         if layouts < 0:
             raise ValueError(f"--layouts {layouts}: need 0 (a new scene per example) or more")
         self.family, self.layouts, self.layout_seed = family, layouts, layout_seed

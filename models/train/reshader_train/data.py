@@ -211,7 +211,8 @@ def make_sample(
 
 class ReshadeDataset(Dataset):
     """Training samples from a dataset folder (or a list of example folders); decoded
-    examples are cached per process."""
+    examples are cached per process, by folder. `reuse` hands over another dataset's cache,
+    so that a re-listed dataset (train --rescan) decodes only the new examples."""
 
     def __init__(
         self,
@@ -220,13 +221,14 @@ class ReshadeDataset(Dataset):
         augment: Augment | None = None,
         cache: bool = True,
         limit: int | None = None,
+        reuse: ReshadeDataset | None = None,
     ) -> None:
         folders = list(root) if isinstance(root, list) else list_examples(Path(root))
         self.folders = folders[:limit]
         self.crop = crop
         self.augment = augment
         self.cache = cache
-        self._examples: dict[int, Example] = {}
+        self._examples: dict[Path, Example] = reuse._examples if reuse is not None else {}
         self._rng: np.random.Generator | None = None
         self._rng_pid = -1
 
@@ -234,11 +236,12 @@ class ReshadeDataset(Dataset):
         return len(self.folders)
 
     def example(self, idx: int) -> Example:
-        ex = self._examples.get(idx)
+        folder = self.folders[idx]
+        ex = self._examples.get(folder)
         if ex is None:
-            ex = load_example(self.folders[idx])
+            ex = load_example(folder)
             if self.cache:
-                self._examples[idx] = ex
+                self._examples[folder] = ex
         return ex
 
     def _generator(self) -> np.random.Generator:

@@ -20,6 +20,16 @@ DISPARITY_FREQUENCIES = 5
 ENCODED_DISPARITY_CHANNELS = 1 + 2 * DISPARITY_FREQUENCIES
 CAMERA_FEATURES = 128  # MLP output (125) concatenated with the raw 3-vector
 NEG_SLOPE = 0.1
+# Output heads. "residual" is the paper's: image + tanh(conv). "camera-linear" makes the last
+# conv predict a per-pixel Jacobian of the shading with respect to the camera position (3
+# colours x 3 axes) and contracts it with the offset: to first order a highlight moves by an
+# amount proportional to the offset, and a small network of LeakyReLU layers fed the camera
+# only at the bottleneck has to build that product out of piecewise-linear pieces. The
+# camera still reaches the bottleneck as in the paper, so the Jacobian may depend on it.
+HEADS = ("residual", "camera-linear")
+# Offsets are divided by this before the contraction (the middle of the paper's 0.1-0.3
+# shell), so that the Jacobian channels are of the order of the change they produce.
+CAMERA_SCALE = 0.2
 
 
 @dataclass(frozen=True)
@@ -29,22 +39,37 @@ class NetConfig:
     widths: tuple[int, ...]
     convs: tuple[int, ...] = (2, 2, 2, 2, 2, 2)
     camera_hidden: tuple[int, ...] = (64, 128)
+    head: str = "residual"
+    # Residual magnitudes up to this (output units, [0,1]) become exactly 0: see Decoder.
+    deadzone: float = 0.0
 
     def __post_init__(self) -> None:
         if len(self.widths) != LEVELS or len(self.convs) != LEVELS:
             raise ValueError(f"NetConfig needs {LEVELS} widths and conv counts, got {self}")
         if min(self.widths) < 1 or min(self.convs) < 1:
             raise ValueError(f"NetConfig widths and conv counts must be positive: {self}")
+        if self.head not in HEADS:
+            raise ValueError(f"unknown output head {self.head!r}: expected one of {HEADS}")
+        if not 0.0 <= self.deadzone < 0.5:
+            raise ValueError(f"dead zone {self.deadzone} must be in [0, 0.5)")
+
+    @property
+    def out_channels(self) -> int:
+        return 9 if self.head == "camera-linear" else 3
 
     def to_json(self) -> dict:
         return asdict(self)
 
     @staticmethod
     def from_json(data: dict) -> NetConfig:
+        # Checkpoints and exports from before the heads existed are "residual" without a
+        # dead zone, which is what these defaults build.
         return NetConfig(
             widths=tuple(data["widths"]),
             convs=tuple(data["convs"]),
             camera_hidden=tuple(data["camera_hidden"]),
+            head=data.get("head", "residual"),
+            deadzone=float(data.get("deadzone", 0.0)),
         )
 
 
@@ -157,19 +182,41 @@ class Upsample2x(nn.Module):
         return F.conv2d(x, self.blur, groups=c)
 
 
+def shrink(r: torch.Tensor, threshold: float) -> torch.Tensor:
+    """Soft threshold: 0 where |r| <= threshold, r -+ threshold beyond.
+
+    Written with two ReLUs so that every engine runs it (ONNX's Shrink is not universal).
+    In training the gradient passes straight through (as if there were no threshold), so a
+    residual inside the zone still learns where it should grow; the forward value, which
+    the loss sees, is the thresholded one."""
+    if threshold == 0.0:
+        return r
+    out = F.relu(r - threshold) - F.relu(-r - threshold)
+    if torch.onnx.is_in_onnx_export():
+        return out
+    return r + (out - r).detach()
+
+
 class Decoder(nn.Module):
-    """(image, skips, bottleneck, camera) -> reshaded image = image + tanh(residual)."""
+    """(image, skips, bottleneck, camera) -> reshaded image = image + shrink(tanh(residual)).
+
+    The dead zone exists because of how the evaluation (and a viewer) weighs views whose
+    shading does not change: a faint residual over an unchanged view costs it many dB, and
+    every network trained here without it left one (README, sessions 3-6). With it, "no
+    change" is an interval the network can land in, not a point it has to hit."""
 
     def __init__(self, cfg: NetConfig) -> None:
         super().__init__()
         w = cfg.widths
+        self.head = cfg.head
+        self.deadzone = cfg.deadzone
         self.camera = CameraMLP(cfg.camera_hidden)
         self.bottleneck = _block(w[-1] + CAMERA_FEATURES, w[-1], cfg.convs[-1])
         self.ups = nn.ModuleList(
             _block(w[i + 1] + w[i], w[i], cfg.convs[i]) for i in reversed(range(LEVELS - 1))
         )
         self.upsample = nn.ModuleList(Upsample2x(w[i + 1]) for i in reversed(range(LEVELS - 1)))
-        self.out = nn.Conv2d(w[0], 3, 3, padding=1)
+        self.out = nn.Conv2d(w[0], cfg.out_channels, 3, padding=1)
         # A small last layer starts the network near the identity (reshaded = input), which
         # is the right answer for most pixels and what the no-reshading baseline scores.
         nn.init.normal_(self.out.weight, std=1e-3)
@@ -188,7 +235,11 @@ class Decoder(nn.Module):
         x = self.bottleneck(torch.cat([bottleneck, cam], dim=1))
         for up, block, skip in zip(self.upsample, self.ups, reversed(skips), strict=True):
             x = block(torch.cat([up(x), skip], dim=1))
-        return image + torch.tanh(self.out(x))
+        r = self.out(x)
+        if self.head == "camera-linear":
+            t = camera / CAMERA_SCALE
+            r = sum(r[:, 3 * k : 3 * k + 3] * t[:, k, None, None, None] for k in range(3))
+        return image + shrink(torch.tanh(r), self.deadzone)
 
 
 class ReshadeNet(nn.Module):

@@ -16,7 +16,7 @@ import random
 import shlex
 import sys
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -29,7 +29,7 @@ from .data import Augment, DatasetError, ReshadeDataset, list_examples
 from .evaluate import masked_psnr, reshade
 from .features import CHOICES, FeatureNetError
 from .losses import LossWeights, ReshadeLoss, make_loss
-from .model import NetConfig, ReshadeNet, count_parameters, net_config
+from .model import HEADS, NetConfig, ReshadeNet, count_parameters, net_config
 from .onnx_weights import load_onnx_weights
 
 CHECKPOINT = "checkpoint.pt"
@@ -42,6 +42,20 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--val-data", type=Path, help="held-out folder for the periodic PSNR check")
     p.add_argument("--run-dir", type=Path, required=True, help="config, logs and checkpoints")
     p.add_argument("--size", default="lite", help="full | lite | six comma-separated widths")
+    p.add_argument(
+        "--head",
+        choices=HEADS,
+        default="residual",
+        help="output head: residual (the paper's: image + tanh(conv)) or camera-linear (the "
+        "last conv predicts the change per unit of camera offset, contracted with the offset)",
+    )
+    p.add_argument(
+        "--deadzone",
+        type=float,
+        default=0.0,
+        help="residual magnitudes up to this become exactly 0 (output units; 0.004 is about "
+        "one 8-bit level), so that views whose shading does not change stay the photo",
+    )
     p.add_argument("--steps", type=int, default=20000, help="total optimiser steps")
     p.add_argument("--batch-size", type=int, default=4, help="per process")
     p.add_argument("--crop", type=int, default=128, help="random square crop (paper: 384)")
@@ -217,8 +231,15 @@ def shared_example_list(args: argparse.Namespace, d: Dist) -> list[Path]:
     return folders
 
 
-def make_loader(args: argparse.Namespace, d: Dist, folders: list[Path]):
-    dataset = ReshadeDataset(folders, crop=args.crop, augment=Augment(), cache=not args.no_cache)
+def make_loader(
+    args: argparse.Namespace, d: Dist, folders: list[Path], previous: ReshadeDataset | None = None
+):
+    # Loader workers fill their own caches, which die with them; only examples decoded in
+    # this process (--workers 0) can be carried over to the re-listed dataset.
+    reuse = previous if args.workers == 0 else None
+    dataset = ReshadeDataset(
+        folders, crop=args.crop, augment=Augment(), cache=not args.no_cache, reuse=reuse
+    )
     sampler = DistributedSampler(
         dataset, num_replicas=d.world, rank=d.rank, shuffle=True, seed=args.seed, drop_last=True
     )
@@ -381,7 +402,8 @@ def train(args: argparse.Namespace) -> ReshadeNet:
     dataset, sampler, loader = make_loader(args, d, shared_example_list(args, d))
     val = ReshadeDataset(args.val_data) if args.val_data and d.main else None
 
-    net = ReshadeNet(net_config(args.size)).to(d.device)
+    cfg = replace(net_config(args.size), head=args.head, deadzone=args.deadzone)
+    net = ReshadeNet(cfg).to(d.device)
     opt = torch.optim.Adam(net.parameters(), lr=args.lr)
     step = restore(args.run_dir, net, opt, criterion.ident, d)
     if step == 0 and args.init_from:
@@ -420,7 +442,7 @@ def train(args: argparse.Namespace) -> ReshadeNet:
         if args.rescan and epoch > first_epoch:
             folders = shared_example_list(args, d)
             if len(folders) > len(dataset):
-                dataset, sampler, loader = make_loader(args, d, folders)
+                dataset, sampler, loader = make_loader(args, d, folders, dataset)
                 meta["train_examples"] = len(dataset)
         sampler.set_epoch(epoch)
         for batch in loader:

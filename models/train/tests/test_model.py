@@ -97,3 +97,60 @@ def test_config_parsing_and_json_round_trip():
         net_config("huge")
     with pytest.raises(ValueError):
         net_config("4,8")
+
+
+def linear_net(deadzone=0.0, seed=0):
+    torch.manual_seed(seed)
+    cfg = NetConfig(TINY.widths, TINY.convs, TINY.camera_hidden, "camera-linear", deadzone)
+    net = ReshadeNet(cfg).eval()
+    torch.nn.init.normal_(net.decoder.out.weight, std=0.05)
+    return net
+
+
+def test_camera_linear_head_is_the_photo_at_the_input_camera():
+    net = linear_net()
+    image, disp = inputs()
+    assert torch.equal(net(image, disp, torch.zeros(1, 3)), image)
+    assert (net(image, disp, torch.tensor([[0.2, 0.0, 0.0]])) - image).abs().max() > 1e-3
+
+
+def test_camera_linear_head_contracts_the_jacobian_with_the_offset():
+    net = linear_net()
+    image, disp = inputs()
+    captured = []
+    net.decoder.out.register_forward_hook(lambda _m, _i, out: captured.append(out))
+    cam = torch.tensor([[0.1, -0.05, 0.2]])
+    change = net(image, disp, cam) - image
+    (jac,) = captured
+    assert jac.shape == (1, 9, 32, 64)
+    expected = sum(jac[:, 3 * k : 3 * k + 3] * float(cam[0, k]) / 0.2 for k in range(3))
+    assert torch.allclose(change, torch.tanh(expected), atol=1e-6)
+
+
+def test_deadzone_makes_small_residuals_exactly_zero_and_keeps_gradients():
+    net = linear_net(deadzone=0.01, seed=3)
+    image, disp = inputs()
+    cam = torch.tensor([[0.3, 0.0, 0.0]])
+    free = linear_net(deadzone=0.0, seed=3)
+    change, free_change = net(image, disp, cam) - image, free(image, disp, cam) - image
+    small = free_change.abs() <= 0.01
+    assert small.any() and (~small).any()
+    assert torch.all(change[small] == 0)
+    big = ~small
+    assert torch.allclose(change[big], free_change[big] - 0.01 * free_change[big].sign(), atol=1e-6)
+    # Straight through: the gradient reaches the last layer even where every output is 0.
+    net.train()
+    out = net(image, disp, cam * 1e-3)
+    assert torch.equal(out, image)
+    ((out - image - 0.5) ** 2).mean().backward()
+    assert net.decoder.out.weight.grad.abs().max() > 0
+
+
+def test_configs_without_a_head_load_as_the_papers_network():
+    old = {"widths": [4, 8, 8, 16, 16, 16], "convs": [1] * 6, "camera_hidden": [16]}
+    cfg = NetConfig.from_json(old)
+    assert cfg.head == "residual" and cfg.deadzone == 0.0 and cfg.out_channels == 3
+    with pytest.raises(ValueError, match="unknown output head"):
+        NetConfig(TINY.widths, head="sideways")
+    with pytest.raises(ValueError, match="dead zone"):
+        NetConfig(TINY.widths, deadzone=-0.1)

@@ -149,3 +149,36 @@ def test_pixel_only_training_records_its_loss(data, tmp_path):
     assert ckpt["pixel_loss"] == "l2"
     log = read_csv(run / "log.csv")
     assert all(float(r["vgg"]) == 0.0 and float(r["style"]) == 0.0 for r in log)
+
+
+def test_head_and_deadzone_reach_the_checkpoint(data, tmp_path):
+    run = tmp_path / "linear"
+    train(train_args(data, run, 2, head="camera-linear", deadzone=0.004))
+    ckpt = torch.load(run / "checkpoint.pt", weights_only=False)
+    assert ckpt["net_config"]["head"] == "camera-linear"
+    assert ckpt["net_config"]["deadzone"] == 0.004
+    assert ckpt["model"]["decoder.out.weight"].shape[0] == 9
+
+
+def test_rescan_decodes_each_example_once(data, tmp_path, monkeypatch):
+    import reshader_train.data as data_module
+    import reshader_train.train as train_module
+
+    calls, decoded = [], []
+    real_load = data_module.load_example
+
+    def growing(root):
+        calls.append(root)
+        folders = list_examples(root)
+        return folders[:2] if len(calls) == 1 else folders
+
+    def counting(folder):
+        decoded.append(folder)
+        return real_load(folder)
+
+    monkeypatch.setattr(train_module, "list_examples", growing)
+    monkeypatch.setattr(data_module, "load_example", counting)
+    args = train_args(data, tmp_path / "run", 4, rescan=True, loss_weights="1,0,0")
+    train(args)
+    decoded = [f for f in decoded if f.parent == data[0]]
+    assert len(decoded) == len(set(decoded)) == 4

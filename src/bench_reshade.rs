@@ -110,7 +110,15 @@ pub fn test_scene(width: u32, height: u32) -> (SrgbImage, DepthMap) {
 
 /// Convolution GFLOP (2 × multiply-adds) of the encoder and of one decoder run for the
 /// manifest's architecture at `h`×`w`, counted as the training toolchain counts them.
-pub fn conv_gflop(widths: &[u64], convs: &[u64], h: usize, w: usize) -> Option<(f64, f64)> {
+/// `out` is the last convolution's channel count: 3 for the paper's residual head, 9 for
+/// the camera-linear head (a 3×3 Jacobian per pixel).
+pub fn conv_gflop(
+    widths: &[u64],
+    convs: &[u64],
+    out: u64,
+    h: usize,
+    w: usize,
+) -> Option<(f64, f64)> {
     if widths.len() != 6 || convs.len() != 6 {
         return None;
     }
@@ -143,11 +151,13 @@ pub fn conv_gflop(widths: &[u64], convs: &[u64], h: usize, w: usize) -> Option<(
             dec += conv(level, c, widths[level]);
         }
     }
-    dec += conv(0, widths[0], 3);
+    dec += conv(0, widths[0], out);
     Some((enc / 1e9, dec / 1e9))
 }
 
-fn architecture(model: &Path, precision: Precision) -> Option<(Vec<u64>, Vec<u64>)> {
+/// Widths, convolutions per level and the last convolution's output channels (absent in
+/// manifests from before the camera-linear head: 3).
+fn architecture(model: &Path, precision: Precision) -> Option<(Vec<u64>, Vec<u64>, u64)> {
     let dir = if model.is_dir() {
         model
     } else {
@@ -168,7 +178,8 @@ fn architecture(model: &Path, precision: Precision) -> Option<(Vec<u64>, Vec<u64
                 .map(|v| v.as_u64())
                 .collect()
         };
-        return Some((list("widths")?, list("convs")?));
+        let out = arch.get("out_channels").map_or(Some(3), |v| v.as_u64())?;
+        return Some((list("widths")?, list("convs")?, out));
     }
     None
 }
@@ -293,8 +304,8 @@ fn precision_table(
                 ort_ms.push((precision, t.per_view_ms));
             }
             let gflops = architecture(&config.model, precision)
-                .and_then(|(w, c)| {
-                    conv_gflop(&w, &c, config.height as usize, config.width as usize)
+                .and_then(|(w, c, out)| {
+                    conv_gflop(&w, &c, out, config.height as usize, config.width as usize)
                 })
                 .map_or("?".into(), |(_, dec)| {
                     format!("{:.1}", dec / (t.per_view_ms / 1e3))
@@ -493,7 +504,7 @@ mod tests {
     #[test]
     fn conv_count_matches_the_toolchain_for_the_tiny_net() {
         // The encoder of widths 4,8,8,16,16,16 (one conv per block) at 64x96, by hand.
-        let (enc, _) = conv_gflop(&[4, 8, 8, 16, 16, 16], &[1; 6], 64, 96).unwrap();
+        let (enc, _) = conv_gflop(&[4, 8, 8, 16, 16, 16], &[1; 6], 3, 64, 96).unwrap();
         let px = |l: u32| (64 >> l) as f64 * (96 >> l) as f64;
         let e = 2.0
             * 9.0
@@ -505,11 +516,13 @@ mod tests {
                 + px(5) * 16.0 * 16.0);
         assert!((enc * 1e9 - e).abs() < 1.0);
         // reshader_train.model.conv_flops for this net at 384x640: encoder 0.3151872,
-        // decoder 0.5142528 GFLOP.
-        let (enc, dec) = conv_gflop(&[4, 8, 8, 16, 16, 16], &[1; 6], 384, 640).unwrap();
+        // decoder 0.5142528 GFLOP (residual head), 0.62042112 (camera-linear head).
+        let (enc, dec) = conv_gflop(&[4, 8, 8, 16, 16, 16], &[1; 6], 3, 384, 640).unwrap();
         assert!((enc - 0.315_187_2).abs() < 1e-9, "{enc}");
         assert!((dec - 0.514_252_8).abs() < 1e-9, "{dec}");
-        assert!(conv_gflop(&[1, 2], &[1, 1], 32, 32).is_none());
+        let (_, dec) = conv_gflop(&[4, 8, 8, 16, 16, 16], &[1; 6], 9, 384, 640).unwrap();
+        assert!((dec - 0.620_421_12).abs() < 1e-9, "{dec}");
+        assert!(conv_gflop(&[1, 2], &[1, 1], 3, 32, 32).is_none());
     }
 
     #[test]

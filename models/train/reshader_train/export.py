@@ -461,6 +461,9 @@ def architecture(cfg: NetConfig, size: str, kind: GraphKind) -> dict:
         "size": size,
         "widths": list(cfg.widths),
         "convs": list(cfg.convs),
+        "head": cfg.head,
+        "out_channels": cfg.out_channels,
+        "deadzone": cfg.deadzone,
         "parameters": count_parameters(module),
         "gflops_at_384x640": round(gflops, 4),
     }

@@ -250,6 +250,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default=0.5,
         help="fraction of --steps after which activation ranges stop moving",
     )
+    p.add_argument(
+        "--form",
+        choices=("qdq", "weights"),
+        default="qdq",
+        help="what the fine-tuning quantises: qdq (conv inputs and weights, for engines with "
+        "int8 convolutions) or weights (int8 weights, float activations: the form that runs "
+        "at fp32 speed in tract); export with the same --int8-form",
+    )
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--threads", type=int, default=0, help="torch threads (0: default)")
     p.add_argument("--val-examples", type=int, default=16)
@@ -322,6 +330,8 @@ def qat(args: argparse.Namespace) -> dict:
             f"with {criterion.ident}",
             file=sys.stderr,
         )
+    # Calibration above still records the activation ranges, so that either form exports.
+    set_input_quantization(net, args.form == "qdq")
     opt = torch.optim.Adam(net.parameters(), lr=args.lr)
     freeze_at = int(args.freeze_observers * args.steps)
     crops = training_crops(args.data, args.steps, args.batch_size, args.crop, args.seed + 1)
@@ -340,13 +350,19 @@ def qat(args: argparse.Namespace) -> dict:
         if (step + 1) % args.log_every == 0 or step + 1 == args.steps:
             print(f"qat step {step + 1}/{args.steps} loss {parts['loss']:.4f}", file=sys.stderr)
     set_mode(net, enabled=True, observing=False, momentum=None)
+    set_input_quantization(net, True)
     net.eval()
     if args.val_data:
         validation.update(int8_scores(net, args.val_data, args.val_examples, "qat"))
     return {
         "model": net.state_dict(),
         "net_config": net.cfg.to_json(),
-        "quantization": {**SCHEME, "method": "qat", "calibration_batches": args.calib_batches},
+        "quantization": {
+            **SCHEME,
+            "method": "qat",
+            "qat_form": args.form,
+            "calibration_batches": args.calib_batches,
+        },
         "step": int(base.get("step", 0)) + args.steps,
         "feature_net": criterion.ident,
         "loss_weights": str(weights),

@@ -273,6 +273,15 @@ def _conv_qparams(q: QuantConv2d) -> dict:
     }
 
 
+# Convolutions with fixed kernels (the x2 upsampling's blur, the flow head's image gradient)
+# are not parameters of the network and stay float.
+FIXED_CONV_SCOPES = ("/upsample.", "/gradient/")
+
+
+def is_fixed_conv(node) -> bool:
+    return any(scope in node.name for scope in FIXED_CONV_SCOPES)
+
+
 def insert_conv_qdq(model, qparams: dict[str, dict], activations: bool = True) -> None:
     """Rewrites every Conv whose weight is in `qparams`: an int8 weight initialiser with a
     per-channel DequantizeLinear and, with `activations`, QuantizeLinear -> DequantizeLinear on
@@ -340,7 +349,7 @@ def insert_conv_qdq(model, qparams: dict[str, dict], activations: bool = True) -
     plain = [
         n.input[1]
         for n in g.node
-        if n.op_type == "Conv" and n.input[1] not in done and "/upsample." not in n.name
+        if n.op_type == "Conv" and n.input[1] not in done and not is_fixed_conv(n)
     ]
     if plain:
         raise ExportError(f"convolutions without quantisation parameters: {plain}")

@@ -26,7 +26,14 @@ NEG_SLOPE = 0.1
 # amount proportional to the offset, and a small network of LeakyReLU layers fed the camera
 # only at the bottleneck has to build that product out of piecewise-linear pieces. The
 # camera still reaches the bottleneck as in the paper, so the Jacobian may depend on it.
-HEADS = ("residual", "camera-linear")
+# "flow" adds the other half of that product: a highlight or reflection that slides by s
+# pixels changes the image by about -grad(I) . s, so the last conv also predicts a shift per
+# unit of offset (2 x 3 channels), which is multiplied by the photo's own gradient (fixed
+# central differences). The network then has to learn smooth fields of geometry
+# (how far, which way) rather than their product with the image's edges.
+HEADS = ("residual", "camera-linear", "flow")
+# Shifts are at most this many pixels per unit of (offset / CAMERA_SCALE).
+FLOW_MAX_PX = 4.0
 # Offsets are divided by this before the contraction (the middle of the paper's 0.1-0.3
 # shell), so that the Jacobian channels are of the order of the change they produce.
 CAMERA_SCALE = 0.2
@@ -55,7 +62,7 @@ class NetConfig:
 
     @property
     def out_channels(self) -> int:
-        return 9 if self.head == "camera-linear" else 3
+        return {"residual": 3, "camera-linear": 9, "flow": 15}[self.head]
 
     def to_json(self) -> dict:
         return asdict(self)
@@ -197,6 +204,22 @@ def shrink(r: torch.Tensor, threshold: float) -> torch.Tensor:
     return r + (out - r).detach()
 
 
+class ImageGradient(nn.Module):
+    """Central differences of an RGB image along x and y, with replicated edges: a fixed
+    depthwise conv (not a parameter; quantisation leaves it in float like the blur)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        k = torch.zeros(2, 1, 3, 3)
+        k[0, 0, 1, 0], k[0, 0, 1, 2] = -0.5, 0.5
+        k[1, 0, 0, 1], k[1, 0, 2, 1] = -0.5, 0.5
+        self.register_buffer("kernel", k.repeat(3, 1, 1, 1), persistent=False)
+
+    def forward(self, image: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        g = F.conv2d(F.pad(image, (1, 1, 1, 1), mode="replicate"), self.kernel, groups=3)
+        return g[:, 0::2], g[:, 1::2]
+
+
 class Decoder(nn.Module):
     """(image, skips, bottleneck, camera) -> reshaded image = image + shrink(tanh(residual)).
 
@@ -217,6 +240,7 @@ class Decoder(nn.Module):
         )
         self.upsample = nn.ModuleList(Upsample2x(w[i + 1]) for i in reversed(range(LEVELS - 1)))
         self.out = nn.Conv2d(w[0], cfg.out_channels, 3, padding=1)
+        self.gradient = ImageGradient() if cfg.head == "flow" else None
         # A small last layer starts the network near the identity (reshaded = input), which
         # is the right answer for most pixels and what the no-reshading baseline scores.
         nn.init.normal_(self.out.weight, std=1e-3)
@@ -236,10 +260,23 @@ class Decoder(nn.Module):
         for up, block, skip in zip(self.upsample, self.ups, reversed(skips), strict=True):
             x = block(torch.cat([up(x), skip], dim=1))
         r = self.out(x)
-        if self.head == "camera-linear":
-            t = camera / CAMERA_SCALE
-            r = sum(r[:, 3 * k : 3 * k + 3] * t[:, k, None, None, None] for k in range(3))
+        if self.head != "residual":
+            r = self.contract(image, r, camera / CAMERA_SCALE)
         return image + shrink(torch.tanh(r), self.deadzone)
+
+    def contract(self, image: torch.Tensor, r: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
+        """Sum over camera axes k of t_k times the change per unit offset along k."""
+        if self.gradient is not None:
+            gx, gy = self.gradient(image)
+            shift = FLOW_MAX_PX * torch.tanh(r[:, 9:15])
+        change = []
+        for k in range(3):
+            per_unit = r[:, 3 * k : 3 * k + 3]
+            if self.gradient is not None:
+                per_unit = per_unit - gx * shift[:, 2 * k : 2 * k + 1]
+                per_unit = per_unit - gy * shift[:, 2 * k + 1 : 2 * k + 2]
+            change.append(per_unit * t[:, k, None, None, None])
+        return sum(change)
 
 
 class ReshadeNet(nn.Module):

@@ -154,3 +154,33 @@ def test_configs_without_a_head_load_as_the_papers_network():
         NetConfig(TINY.widths, head="sideways")
     with pytest.raises(ValueError, match="dead zone"):
         NetConfig(TINY.widths, deadzone=-0.1)
+
+
+def test_image_gradient_is_central_differences_with_replicated_edges():
+    from reshader_train.model import ImageGradient
+
+    x = torch.arange(8.0)[None, None, None, :].expand(1, 3, 4, 8) * 0.1
+    gx, gy = ImageGradient()(x)
+    assert torch.allclose(gx[..., 1:-1], torch.full_like(gx[..., 1:-1], 0.1))
+    assert torch.allclose(gx[..., 0], torch.full_like(gx[..., 0], 0.05))
+    assert torch.equal(gy, torch.zeros_like(gy))
+
+
+def test_flow_head_moves_a_ramp_by_the_predicted_shift():
+    from reshader_train.model import FLOW_MAX_PX
+
+    cfg = NetConfig(TINY.widths, TINY.convs, TINY.camera_hidden, "flow")
+    net = ReshadeNet(cfg).eval()
+    # No Jacobian term; a constant shift of 1 px along x per unit of tx / 0.2.
+    torch.nn.init.zeros_(net.decoder.out.weight)
+    bias = torch.zeros(15)
+    bias[9] = math.atanh(1.0 / FLOW_MAX_PX)
+    net.decoder.out.bias.data.copy_(bias)
+    ramp = 0.2 + 0.01 * torch.arange(64.0)[None, None, None, :].expand(1, 3, 32, 64)
+    disp = torch.zeros(1, 1, 32, 64)
+    assert torch.equal(net(ramp, disp, torch.zeros(1, 3)), ramp)
+    change = net(ramp, disp, torch.tensor([[0.1, 0.0, 0.0]])) - ramp
+    # Shifting I = 0.01 x by 0.5 px to the right lowers it by 0.005 (tanh(0.005) ~ 0.005).
+    inner = change[..., 1:-1]
+    assert torch.allclose(inner, torch.full_like(inner, math.tanh(-0.005)), atol=1e-6)
+    assert net(ramp, disp, torch.tensor([[0.0, 0.2, 0.0]])).sub(ramp).abs().max() == 0

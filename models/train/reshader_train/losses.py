@@ -59,9 +59,28 @@ def negative_psnr(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     return 10.0 * torch.log10(mse + 10.0 ** (-PSNR_CAP_DB / 10.0)).mean()
 
 
+# The floor of relative_l2's weights: crops whose shading changes less than this (as PSNR
+# of the input against the truth) all weigh as much as one at the floor.
+RELATIVE_FLOOR_DB = 45.0
+
+
+def relative_l2(pred: torch.Tensor, target: torch.Tensor, image: torch.Tensor) -> torch.Tensor:
+    """Per crop, the squared error divided by how much the truth differs from the input
+    (floored at RELATIVE_FLOOR_DB), averaged over the batch.
+
+    The evaluation's mean PSNR is a mean of log(error): to first order, each image's error
+    counts relative to its own change, so a faint residual on a view that hardly changes
+    costs as much as missing a highlight that moves. `psnr` weighs by the prediction's own
+    error and rewards retreating to the identity (every run with it did); these weights
+    come from the data alone."""
+    err = (pred - target).square().flatten(1).mean(1)
+    change = (target - image).square().flatten(1).mean(1)
+    return (err / (change + 10.0 ** (-RELATIVE_FLOOR_DB / 10.0))).mean()
+
+
 # L1 is the paper's. With Monte-Carlo noise in the targets its optimum at a noisy pixel is
 # the median, i.e. no change; L2's is the mean, which keeps view-dependent brightness changes.
-PIXEL_LOSSES = {"l1": F.l1_loss, "l2": F.mse_loss, "psnr": negative_psnr}
+PIXEL_LOSSES = {"l1": F.l1_loss, "l2": F.mse_loss, "psnr": negative_psnr, "rel-l2": relative_l2}
 
 
 def gram(features: torch.Tensor) -> torch.Tensor:
@@ -114,11 +133,20 @@ class ReshadeLoss(nn.Module):
             return self.feature_net(x).float()
 
     def forward(
-        self, pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor
+        self,
+        pred: torch.Tensor,
+        target: torch.Tensor,
+        mask: torch.Tensor,
+        image: torch.Tensor | None = None,
     ) -> tuple[torch.Tensor, dict[str, float]]:
         pred = pred * mask
         target = target * mask
-        pixel = PIXEL_LOSSES[self.pixel](pred, target)
+        if self.pixel == "rel-l2":
+            if image is None:
+                raise ValueError("the rel-l2 pixel loss needs the input image")
+            pixel = relative_l2(pred, target, image * mask)
+        else:
+            pixel = PIXEL_LOSSES[self.pixel](pred, target)
         w = self.weights
         if self.feature_net is None:
             vgg = style = torch.zeros((), device=pred.device)

@@ -339,9 +339,8 @@ def qat(args: argparse.Namespace) -> dict:
     for step, b in enumerate(crops):
         observing = step < freeze_at
         set_mode(net, enabled=True, observing=observing, momentum=EMA_MOMENTUM)
-        loss, parts = criterion(
-            net(b["image"], b["disparity"], b["camera"]), b["target"], b["mask"]
-        )
+        pred = net(b["image"], b["disparity"], b["camera"])
+        loss, parts = criterion(pred, b["target"], b["mask"], b["image"])
         if not torch.isfinite(loss):
             raise FloatingPointError(f"QAT loss is {float(loss)} at step {step}: {parts}")
         opt.zero_grad(set_to_none=True)

@@ -76,10 +76,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--pixel-loss",
-        choices=("l1", "l2", "psnr"),
+        choices=("l1", "l2", "psnr", "rel-l2"),
         default="l1",
-        help="the pixel term: l1 (the paper's), l2 (mean squared error) or psnr (minus the "
-        "per-crop PSNR, the evaluation's measure)",
+        help="the pixel term: l1 (the paper's), l2 (mean squared error), psnr (minus the "
+        "per-crop PSNR, the evaluation's measure) or rel-l2 (per crop, the squared error over "
+        "how much the truth differs from the input: the evaluation's emphasis, fixed by the data)",
     )
     p.add_argument("--feature-net", choices=CHOICES, default="auto")
     p.add_argument("--vgg-weights", help="torchvision VGG-19 state dict (the paper's network)")
@@ -374,7 +375,7 @@ def train_step(model, criterion: ReshadeLoss, opt, batch: dict, lr: float, d: Di
         group["lr"] = lr
     b = {k: v.to(d.device, non_blocking=True) for k, v in batch.items()}
     pred = model(b["image"], b["disparity"], b["camera"])
-    loss, parts = criterion(pred, b["target"], b["mask"])
+    loss, parts = criterion(pred, b["target"], b["mask"], b["image"])
     if not torch.isfinite(loss):
         raise FloatingPointError(f"loss is {float(loss)} at step {step}: {parts}")
     opt.zero_grad(set_to_none=True)

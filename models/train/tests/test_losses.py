@@ -172,3 +172,32 @@ def test_psnr_pixel_loss_still_rewards_images_above_50_db():
     at_50 = loss(torch.full_like(target, 10**-2.5), target, mask)[1]["pixel"]
     at_60 = loss(torch.full_like(target, 1e-3), target, mask)[1]["pixel"]
     assert at_60 < at_50 - 9.0
+
+
+def test_relative_l2_weighs_each_crop_by_its_own_change():
+    from reshader_train.losses import RELATIVE_FLOOR_DB, relative_l2
+
+    image = torch.full((2, 3, 8, 8), 0.5)
+    target = image.clone()
+    target[0] += 0.1  # crop 0 changes by 0.1, crop 1 not at all
+    wrong = torch.full_like(image, 0.01)
+    floor = 10.0 ** (-RELATIVE_FLOOR_DB / 10.0)
+    # The same absolute error costs far more on the crop that does not change.
+    err_on_static = relative_l2(target + wrong * torch.tensor([0.0, 1.0])[:, None, None, None],
+                                target, image)  # fmt: skip
+    err_on_changed = relative_l2(target + wrong * torch.tensor([1.0, 0.0])[:, None, None, None],
+                                 target, image)  # fmt: skip
+    assert float(err_on_static) == pytest.approx(0.5 * 1e-4 / floor, rel=1e-4)
+    assert float(err_on_changed) == pytest.approx(0.5 * 1e-4 / (0.01 + floor), rel=1e-4)
+    assert err_on_static > 100 * err_on_changed
+    assert float(relative_l2(target, target, image)) == 0.0
+
+
+def test_relative_l2_needs_the_input_image():
+    loss = ReshadeLoss(None, LossWeights(1, 0, 0), pixel="rel-l2")
+    x = torch.rand(1, 3, 8, 8)
+    mask = torch.ones(1, 1, 8, 8)
+    with pytest.raises(ValueError, match="needs the input image"):
+        loss(x, x, mask)
+    total, parts = loss(x, x + 0.1, mask, x)
+    assert parts["pixel"] == pytest.approx(0.01 / (0.01 + 10**-4.5), rel=1e-3)

@@ -367,3 +367,33 @@ def test_quantize_weights_form_fine_tunes_with_float_activations(data, tmp_path,
     assert state["quantization"]["qat_form"] == "weights"
     assert cli.main(argv + ["--out", str(tmp_path / "q.pt")]) == 0
     assert calls["n"] > 0
+
+
+def test_flow_head_with_dead_zone_exports_in_every_precision(data, tmp_path):
+    from dataclasses import replace
+
+    torch.manual_seed(2)
+    cfg = replace(net_config(TINY), head="flow", deadzone=0.004)
+    net = ReshadeNet(cfg).eval()
+    torch.nn.init.normal_(net.decoder.out.weight, std=0.3)
+    q = quantize_network(copy.deepcopy(net))
+    calibrate(q, training_crops(data, 2, 2, 32, seed=0))
+    info = ExportInfo(size="flow", validation={})
+    export_precision(net, "fp32", tmp_path, "flow-fp32", info, True, H, W)
+    export_precision(q.eval(), "int8", tmp_path, "flow-int8", info, True, H, W)
+    m = json.loads((tmp_path / "flow-fp32-decoder.json").read_text())
+    assert m["architecture"]["head"] == "flow" and m["architecture"]["out_channels"] == 15
+    assert m["architecture"]["deadzone"] == 0.004
+    feed = random_feed()
+    with torch.no_grad():
+        ref = net(feed["image"], feed["disparity"], feed["camera"]).numpy()
+    got = split_output(tmp_path, "flow-fp32", feed)
+    assert np.abs(ref - feed["image"].numpy()).max() > 0.05  # a visible change to compare
+    assert np.abs(got - ref).max() <= TOLERANCE["fp32"]
+    still = split_output(tmp_path, "flow-fp32", {**feed, "camera": torch.zeros(1, 3)})
+    assert np.array_equal(still, feed["image"].numpy())  # the input camera keeps the photo
+    graph = onnx.load(tmp_path / "flow-int8-decoder.onnx").graph
+    gradients = [n for n in graph.node if n.op_type == "Conv" and "/gradient/" in n.name]
+    assert len(gradients) == 1
+    (source,) = [n for n in graph.node if gradients[0].input[1] in n.output]
+    assert source.op_type == "Constant"  # a float kernel, not a dequantised one

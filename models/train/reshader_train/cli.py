@@ -21,6 +21,11 @@ COMMANDS = [
         "reshader_train.render.headroom",
         "how much any network could gain: input vs input + noise-free change, re-rendered",
     ),
+    (
+        "import",
+        "reshader_train.from_onnx",
+        "checkpoint from an exported fp32 encoder/decoder pair (e.g. to add a dead zone)",
+    ),
     ("train", "reshader_train.train", "train the reshading network (single process or torchrun)"),
     ("evaluate", "reshader_train.evaluate", "PSNR/SSIM of input vs reshaded on held-out data"),
     ("export", "reshader_train.export", "ONNX models (fp32/fp16/int8, single/split) + manifests"),

@@ -577,6 +577,8 @@ def export_precision(
 
 
 def _train_command(ckpt_path: Path, ckpt: dict) -> str:
+    if ckpt.get("command"):  # `import` records the source's command and its own
+        return ckpt["command"]
     config = ckpt_path.parent / "config.json"
     if config.is_file():
         try:
@@ -612,12 +614,14 @@ def training_info(ckpt_path: Path, ckpt: dict) -> dict:
     args = ckpt.get("args") or {}
     command = _train_command(ckpt_path, ckpt)
     steps = int(ckpt.get("base_step", ckpt.get("step", 0)) or 0)
-    wall = _train_wall_time(ckpt_path)
+    wall = _train_wall_time(ckpt_path) or ckpt.get("wall_time_s")
     data = str(args.get("data", "unknown"))
     if "quantization" in ckpt:
         base = Path(ckpt["base_checkpoint"])
-        command = f"{_train_command(base, ckpt)} && {ckpt['qat_command']}"
-        wall = (_train_wall_time(base) or 0.0) + float(ckpt.get("qat_wall_time_s", 0.0))
+        base_command = ckpt.get("base_command") or _train_command(base, ckpt)
+        command = f"{base_command} && {ckpt['qat_command']}"
+        base_wall = _train_wall_time(base) or ckpt.get("base_wall_time_s") or 0.0
+        wall = float(base_wall) + float(ckpt.get("qat_wall_time_s", 0.0))
         steps += int(ckpt.get("qat_steps", 0))
         if ckpt.get("qat_data") and ckpt["qat_data"] != data:
             data = f"{data} (QAT: {ckpt['qat_data']})"

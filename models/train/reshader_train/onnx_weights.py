@@ -10,7 +10,7 @@ import numpy as np
 import torch
 
 
-def load_onnx_weights(net: torch.nn.Module, files: list[Path]) -> int:
+def load_onnx_weights(net: torch.nn.Module, files: list[Path], label: str = "--init-from") -> int:
     """Copy every parameter of `net` from the fp32 ONNX `files`; returns how many.
 
     Refuses files that lack a parameter, hold it in another shape (another --size) or in
@@ -23,7 +23,7 @@ def load_onnx_weights(net: torch.nn.Module, files: list[Path]) -> int:
         try:
             graph = onnx.load(str(path)).graph
         except Exception as err:  # onnx raises DecodeError, OSError, ...
-            raise ValueError(f"--init-from {path}: not a readable ONNX file ({err})") from None
+            raise ValueError(f"{label} {path}: not a readable ONNX file ({err})") from None
         for init in graph.initializer:
             found[init.name] = (path, numpy_helper.to_array(init))
     params = dict(net.named_parameters())
@@ -31,7 +31,7 @@ def load_onnx_weights(net: torch.nn.Module, files: list[Path]) -> int:
     if missing:
         names = ", ".join(missing[:3]) + (", ..." if len(missing) > 3 else "")
         raise ValueError(
-            f"--init-from {' '.join(map(str, files))}: no weights for {len(missing)} of the "
+            f"{label} {' '.join(map(str, files))}: no weights for {len(missing)} of the "
             f"network's {len(params)} parameters ({names}); give the fp32 encoder and "
             "decoder of a model exported at the same --size"
         )
@@ -40,7 +40,7 @@ def load_onnx_weights(net: torch.nn.Module, files: list[Path]) -> int:
             path, value = found[name]
             if value.dtype != np.float32 or value.shape != tuple(param.shape):
                 raise ValueError(
-                    f"--init-from {path}: {name} is {value.dtype} {list(value.shape)}, the "
+                    f"{label} {path}: {name} is {value.dtype} {list(value.shape)}, the "
                     f"network wants float32 {list(param.shape)} (an fp32 export of this --size)"
                 )
             param.copy_(torch.from_numpy(value.copy()))

@@ -368,6 +368,9 @@ def qat(args: argparse.Namespace) -> dict:
         "pixel_loss": criterion.pixel,
         "args": base.get("args", {}),
         "base_checkpoint": str(args.checkpoint.resolve()),
+        # Set when the base was rebuilt by `import` (it has no run folder to read them from).
+        "base_command": base.get("command"),
+        "base_wall_time_s": base.get("wall_time_s"),
         "base_step": base.get("step"),
         "qat_command": command_line("quantize", args, ("checkpoint",)),
         "qat_steps": args.steps,

@@ -397,3 +397,36 @@ def test_flow_head_with_dead_zone_exports_in_every_precision(data, tmp_path):
     assert len(gradients) == 1
     (source,) = [n for n in graph.node if gradients[0].input[1] in n.output]
     assert source.op_type == "Constant"  # a float kernel, not a dequantised one
+
+
+def test_import_rebuilds_a_checkpoint_from_an_exported_pair(nets, tmp_path, capsys):
+    # Distinct values everywhere: the ONNX exporter merges identical initialisers (such as
+    # an untrained network's zero biases) under one name.
+    net = copy.deepcopy(nets["fp32"])
+    torch.manual_seed(5)
+    for p in net.parameters():
+        p.data.normal_(0.0, 0.1)
+    export_precision(
+        net, "fp32", tmp_path, "src", ExportInfo(size="tiny", validation={}), True, H, W
+    )
+    out = tmp_path / "imported.pt"
+    enc, dec = (tmp_path / f"src-{part}.onnx" for part in ("encoder", "decoder"))
+    assert cli.main(["import", str(enc), str(dec), "--out", str(out), "--deadzone", "0.01"]) == 0
+    state = torch.load(out, weights_only=False)
+    assert state["net_config"]["deadzone"] == 0.01
+    assert list(state["net_config"]["widths"]) == [4] * 6
+    for name, value in net.state_dict().items():
+        assert torch.equal(state["model"][name], value), name
+    assert state["command"].endswith("--deadzone 0.01")
+    assert "reshader-train import" in state["command"]
+    # The loss the weights were trained with comes from the source's command.
+    assert state.get("pixel_loss") is None  # the test export's command names none
+    from reshader_train.from_onnx import loss_options
+
+    line = "reshader-train train --loss-weights 1,0,0 --pixel-loss psnr --steps 9"
+    assert loss_options(line) == {"loss_weights": "1,0,0", "pixel_loss": "psnr"}
+    bare = tmp_path / "bare.onnx"
+    bare.write_bytes(enc.read_bytes())
+    assert cli.main(["import", str(bare), "--out", str(tmp_path / "x.pt")]) == 2
+    assert "bare.json" in capsys.readouterr().err
+    assert not (tmp_path / "x.pt").exists()

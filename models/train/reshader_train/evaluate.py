@@ -150,8 +150,11 @@ def evaluate_folder(net: ReshadeNet, root: Path, limit: int | None, lpips_fn=Non
 
 
 def summarise(rows: list[dict]) -> dict[str, dict]:
-    """Per split (and per scene when a split has several) mean metrics and PSNR gain."""
+    """Per split (and per scene when a split has several; all splits together when there
+    are several) mean metrics and PSNR gain."""
     groups: dict[str, list[dict]] = defaultdict(list)
+    if len({r["split"] for r in rows}) > 1:  # several folders: their union first
+        groups["all"] = list(rows)
     for r in rows:
         groups[r["split"]].append(r)
         groups[f"{r['split']}/{r['scene']}"].append(r)

@@ -72,6 +72,12 @@ def test_summary_gain_and_scenes():
     pooled = 10 * math.log10(1 / ((1e-3 * 100 + 1e-2 * 300) / 400))
     assert s["val"]["pooled_psnr_input"] == pytest.approx(pooled)
     assert s["val/a"]["psnr_ours"] == 32.0 and "val/b" in s
+    assert "all" not in s  # one folder: no union row
+    test_row = {**rows[0], "split": "test", "psnr_ours": 29.0}
+    both = summarise([*rows, test_row])
+    assert both["all"]["count"] == 3 and both["all"]["improved"] == 2
+    assert both["all"]["gain_db"] == pytest.approx((2.0 + 1.0 - 1.0) / 3)
+    assert list(both)[0] == "all" and both["test"]["count"] == 1
 
 
 def test_evaluate_command(tmp_path, capsys):

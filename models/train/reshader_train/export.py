@@ -635,8 +635,10 @@ def training_info(ckpt_path: Path, ckpt: dict) -> dict:
 
 
 def size_name(cfg: NetConfig) -> str:
+    """The named size whose widths, conv counts and camera MLP `cfg` has (the output head and
+    dead zone are not part of the size), else "custom"."""
     for name, c in SIZES.items():
-        if c == cfg:
+        if (c.widths, c.convs, c.camera_hidden) == (cfg.widths, cfg.convs, cfg.camera_hidden):
             return name
     return "custom"
 

@@ -184,3 +184,12 @@ def test_flow_head_moves_a_ramp_by_the_predicted_shift():
     inner = change[..., 1:-1]
     assert torch.allclose(inner, torch.full_like(inner, math.tanh(-0.005)), atol=1e-6)
     assert net(ramp, disp, torch.tensor([[0.0, 0.2, 0.0]])).sub(ramp).abs().max() == 0
+
+
+def test_size_names_ignore_head_and_dead_zone():
+    from dataclasses import replace
+
+    from reshader_train.export import size_name
+
+    assert size_name(replace(SIZES["lite"], deadzone=0.004, head="flow")) == "lite"
+    assert size_name(TINY) == "custom"

@@ -20,6 +20,7 @@ import torch
 
 from .model import HEADS, LEVELS, SIZES, NetConfig, ReshadeNet, net_config
 from .onnx_weights import load_onnx_weights
+from .train import atomic_write
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -107,9 +108,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"import: {err}", file=sys.stderr)
         return 2
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = args.out.with_name(f".{args.out.name}.tmp")
-    torch.save(state, tmp)
-    tmp.replace(args.out)
+    atomic_write(args.out, lambda tmp: torch.save(state, tmp))
     cfg = state["net_config"]
     print(f"checkpoint {args.out}: {cfg['head']} head, dead zone {cfg['deadzone']:g}")
     return 0

@@ -26,6 +26,7 @@ from torch import nn
 
 from .data import Augment, DatasetError, ReshadeDataset
 from .model import NetConfig, ReshadeNet
+from .train import atomic_write
 
 ACT_QMIN, ACT_QMAX = 0, 255
 WEIGHT_QMIN, WEIGHT_QMAX = -128, 127
@@ -389,9 +390,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"quantize: {err}", file=sys.stderr)
         return 2
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = args.out.with_name(f".{args.out.name}.tmp")
-    torch.save(state, tmp)
-    tmp.replace(args.out)
+    atomic_write(args.out, lambda tmp: torch.save(state, tmp))
     print(json.dumps(state["validation"], indent=2))
     print(f"quantised checkpoint: {args.out}")
     return 0

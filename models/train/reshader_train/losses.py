@@ -64,7 +64,9 @@ def negative_psnr(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
 RELATIVE_FLOOR_DB = 45.0
 
 
-def relative_l2(pred: torch.Tensor, target: torch.Tensor, image: torch.Tensor) -> torch.Tensor:
+def relative_l2(
+    pred: torch.Tensor, target: torch.Tensor, image: torch.Tensor | None
+) -> torch.Tensor:
     """Per crop, the squared error divided by how much the truth differs from the input
     (floored at RELATIVE_FLOOR_DB), averaged over the batch.
 
@@ -73,6 +75,8 @@ def relative_l2(pred: torch.Tensor, target: torch.Tensor, image: torch.Tensor) -
     costs as much as missing a highlight that moves. `psnr` weighs by the prediction's own
     error and rewards retreating to the identity (every run with it did); these weights
     come from the data alone."""
+    if image is None:
+        raise ValueError("the rel-l2 pixel loss needs the input image")
     err = (pred - target).square().flatten(1).mean(1)
     change = (target - image).square().flatten(1).mean(1)
     return (err / (change + 10.0 ** (-RELATIVE_FLOOR_DB / 10.0))).mean()
@@ -80,7 +84,13 @@ def relative_l2(pred: torch.Tensor, target: torch.Tensor, image: torch.Tensor) -
 
 # L1 is the paper's. With Monte-Carlo noise in the targets its optimum at a noisy pixel is
 # the median, i.e. no change; L2's is the mean, which keeps view-dependent brightness changes.
-PIXEL_LOSSES = {"l1": F.l1_loss, "l2": F.mse_loss, "psnr": negative_psnr, "rel-l2": relative_l2}
+# Each takes (prediction, target, input image); only rel-l2 uses the input.
+PIXEL_LOSSES = {
+    "l1": lambda pred, target, _image: F.l1_loss(pred, target),
+    "l2": lambda pred, target, _image: F.mse_loss(pred, target),
+    "psnr": lambda pred, target, _image: negative_psnr(pred, target),
+    "rel-l2": relative_l2,
+}
 
 
 def gram(features: torch.Tensor) -> torch.Tensor:
@@ -141,12 +151,8 @@ class ReshadeLoss(nn.Module):
     ) -> tuple[torch.Tensor, dict[str, float]]:
         pred = pred * mask
         target = target * mask
-        if self.pixel == "rel-l2":
-            if image is None:
-                raise ValueError("the rel-l2 pixel loss needs the input image")
-            pixel = relative_l2(pred, target, image * mask)
-        else:
-            pixel = PIXEL_LOSSES[self.pixel](pred, target)
+        image = None if image is None else image * mask
+        pixel = PIXEL_LOSSES[self.pixel](pred, target, image)
         w = self.weights
         if self.feature_net is None:
             vgg = style = torch.zeros((), device=pred.device)

@@ -31,7 +31,9 @@ NEG_SLOPE = 0.1
 # unit of offset (2 x 3 channels), which is multiplied by the photo's own gradient (fixed
 # central differences). The network then has to learn smooth fields of geometry
 # (how far, which way) rather than their product with the image's edges.
-HEADS = ("residual", "camera-linear", "flow")
+# Channels of the last conv per head: the residual, 3 x 3 Jacobian, and 6 shifts more.
+HEAD_CHANNELS = {"residual": 3, "camera-linear": 9, "flow": 15}
+HEADS = tuple(HEAD_CHANNELS)
 # Shifts are at most this many pixels per unit of (offset / CAMERA_SCALE).
 FLOW_MAX_PX = 4.0
 # Offsets are divided by this before the contraction (the middle of the paper's 0.1-0.3
@@ -62,7 +64,7 @@ class NetConfig:
 
     @property
     def out_channels(self) -> int:
-        return {"residual": 3, "camera-linear": 9, "flow": 15}[self.head]
+        return HEAD_CHANNELS[self.head]
 
     def to_json(self) -> dict:
         return asdict(self)

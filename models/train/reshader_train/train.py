@@ -28,7 +28,7 @@ from torch.utils.data import DataLoader, DistributedSampler
 from .data import Augment, DatasetError, ReshadeDataset, list_examples
 from .evaluate import masked_psnr, reshade
 from .features import CHOICES, FeatureNetError
-from .losses import LossWeights, ReshadeLoss, make_loss
+from .losses import PIXEL_LOSSES, LossWeights, ReshadeLoss, make_loss
 from .model import HEADS, NetConfig, ReshadeNet, count_parameters, net_config
 from .onnx_weights import load_onnx_weights
 
@@ -46,8 +46,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--head",
         choices=HEADS,
         default="residual",
-        help="output head: residual (the paper's: image + tanh(conv)) or camera-linear (the "
-        "last conv predicts the change per unit of camera offset, contracted with the offset)",
+        help="output head: residual (the paper's: image + tanh(conv)), camera-linear (the "
+        "last conv predicts the change per unit of camera offset, contracted with the offset) "
+        "or flow (camera-linear plus a predicted shift times the photo's gradient)",
     )
     p.add_argument(
         "--deadzone",
@@ -76,7 +77,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--pixel-loss",
-        choices=("l1", "l2", "psnr", "rel-l2"),
+        choices=tuple(PIXEL_LOSSES),
         default="l1",
         help="the pixel term: l1 (the paper's), l2 (mean squared error), psnr (minus the "
         "per-crop PSNR, the evaluation's measure) or rel-l2 (per crop, the squared error over "

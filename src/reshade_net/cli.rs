@@ -20,10 +20,10 @@ pub struct ReshadeArgs {
     /// shading. Default: models/reshade, or $RESHADER_MODEL.
     #[arg(long)]
     pub model: Option<PathBuf>,
-    /// Model precision to load: fp32 (the default: the shipped int8 graph quantises its
-    /// convolutions' inputs, which tract on x86 runs slower than fp32), int8 (a quarter of
-    /// the weights) or fp16. The model must have been exported at that precision; fp16
-    /// weights are computed in f32 on CPUs without fp16 arithmetic.
+    /// Model precision to load: fp32 (the default: tract on x86 runs the shipped int8
+    /// files slower than fp32), int8 (a quarter of the weight bytes) or fp16. The model
+    /// must have been exported at that precision; fp16 weights are computed in f32 on CPUs
+    /// without fp16 arithmetic.
     #[arg(long, default_value = "fp32", value_parser = parse_precision)]
     pub precision: Precision,
     /// Inference engine: tract (built in), or ort (onnxruntime from $ORT_DYLIB_PATH; needs

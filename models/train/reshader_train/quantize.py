@@ -33,8 +33,8 @@ WEIGHT_QMIN, WEIGHT_QMAX = -128, 127
 # Symmetric weights use -127..127 so that zero stays exact and -128 is never produced.
 WEIGHT_LEVELS = 127
 # Export forms: "qdq" quantises conv inputs and weights (integer convolutions where the engine
-# has them); "weights" stores int8 weights only (activations float: the engine dequantises the
-# weights at load and runs float convolutions, at fp32 speed with a quarter of the file).
+# has them); "weights" stores int8 weights only (activations float, a quarter of the file:
+# the form shipped for tract, whose integer path is slower still on x86; README, session 7).
 INT8_FORMS = {
     "qdq": "convolutions only: QDQ on conv inputs (uint8 per tensor) and weights (int8)",
     "weights": "convolution weights only (int8 per channel); activations float",
@@ -256,8 +256,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         choices=("qdq", "weights"),
         default="qdq",
         help="what the fine-tuning quantises: qdq (conv inputs and weights, for engines with "
-        "int8 convolutions) or weights (int8 weights, float activations: the form that runs "
-        "at fp32 speed in tract); export with the same --int8-form",
+        "int8 convolutions) or weights (int8 weights, float activations: the form shipped "
+        "for tract); export with the same --int8-form",
     )
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--threads", type=int, default=0, help="torch threads (0: default)")
@@ -289,8 +289,8 @@ def held_out_psnr(net: ReshadeNet, root: Path, count: int) -> dict[str, float]:
 
 def int8_scores(net: ReshadeNet, root: Path, count: int, method: str) -> dict[str, dict]:
     """Held-out PSNR of both exported int8 forms: `qdq` (conv inputs and weights
-    quantised, as trained) and `weights` (int8 weights, float activations; the form that
-    runs at fp32 speed in tract)."""
+    quantised, as trained) and `weights` (int8 weights, float activations; the form
+    shipped for tract)."""
     weights_only = copy.deepcopy(net)
     set_input_quantization(weights_only, False)
     return {

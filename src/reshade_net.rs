@@ -699,6 +699,22 @@ fn reshade_manifests(
     Ok(found)
 }
 
+/// "; it has fp32 (--precision fp32)" when `dir` holds reshading models at other
+/// precisions than the one asked for, so that the error says what would load.
+fn other_precisions(dir: &Path, asked: Precision) -> String {
+    let found: Vec<String> = [Precision::Int8, Precision::Fp32, Precision::Fp16]
+        .into_iter()
+        .filter(|&p| p != asked)
+        .filter(|&p| reshade_manifests(dir, p).is_ok_and(|m| !m.is_empty()))
+        .map(|p| format!("{p} (--precision {p})"))
+        .collect();
+    if found.is_empty() {
+        String::new()
+    } else {
+        format!("; it has {}", found.join(", "))
+    }
+}
+
 fn find_in_dir(dir: &Path, precision: Precision) -> Result<Form, NetError> {
     let found = reshade_manifests(dir, precision)?;
     let of = |task: Task| -> Vec<&PathBuf> {
@@ -715,7 +731,10 @@ fn find_in_dir(dir: &Path, precision: Precision) -> Result<Form, NetError> {
     );
     let none = || NetError::Model {
         path: dir.to_owned(),
-        problem: format!("holds no reshading model manifest with precision {precision}"),
+        problem: format!(
+            "holds no reshading model manifest with precision {precision}{}",
+            other_precisions(dir, precision)
+        ),
     };
     let ambiguous = |what: &str, list: &[&PathBuf]| NetError::Model {
         path: dir.to_owned(),

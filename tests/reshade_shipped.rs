@@ -9,6 +9,7 @@ mod reshade_support;
 use std::path::{Path, PathBuf};
 
 use reshade_support::{depth_from_disparity, read_npy, tract};
+use reshader::engine::{tract::TractEngine, Engine, ModelSource, Tensor};
 use reshader::manifest::Precision;
 use reshader::photo::SrgbImage;
 use reshader::reshade_net::{NetOptions, NetReshader};
@@ -168,6 +169,50 @@ fn int8_improves_the_views_as_fp32_does() {
         (int8 - fp32).abs() < 0.3,
         "int8 median gain {int8:.3} dB, fp32 {fp32:.3} dB"
     );
+}
+
+#[test]
+fn int8_weights_folded_at_load_compute_what_the_int8_graph_computes() {
+    // The same bytes planned as int8 (tract gets f32 weights folded from the int8 ones)
+    // and as fp32 (tract runs the graph's DequantizeLinear nodes itself) must agree.
+    let path = shipped().join("reshade-lite-int8-wo-encoder.onnx");
+    let bytes = std::fs::read(&path).unwrap();
+    let (h, w) = (64, 96);
+    let ramp = |n: usize, k: usize| -> Vec<f32> {
+        (0..n).map(|i| ((i * k) % 251) as f32 / 250.0).collect()
+    };
+    let image = Tensor::new(vec![1, 3, h, w], ramp(3 * h * w, 7));
+    let disparity = Tensor::new(vec![1, 1, h, w], ramp(h * w, 13));
+    let shapes = [
+        ("image", image.shape.clone()),
+        ("disparity", disparity.shape.clone()),
+    ];
+    let outputs = ["bottleneck", "skip0", "skip1", "skip2", "skip3", "skip4"];
+    let engine = TractEngine::new(1);
+    let run = |precision| {
+        let source = ModelSource {
+            path: &path,
+            bytes: &bytes,
+            precision,
+        };
+        let plan = engine.plan(source, &shapes, &outputs).unwrap();
+        plan.run(&[("image", &image), ("disparity", &disparity)])
+            .unwrap()
+    };
+    let (folded, graph) = (run(Precision::Int8), run(Precision::Fp32));
+    for ((a, b), name) in folded.iter().zip(&graph).zip(outputs) {
+        assert_eq!(a.shape, b.shape, "{name}");
+        let scale = b.data.iter().fold(0.0f32, |m, v| m.max(v.abs())).max(1e-6);
+        let diff = a
+            .data
+            .iter()
+            .zip(&b.data)
+            .fold(0.0f32, |m, (x, y)| m.max((x - y).abs()));
+        assert!(
+            diff <= 1e-4 * scale,
+            "{name}: max difference {diff} at scale {scale}"
+        );
+    }
 }
 
 #[test]

@@ -309,3 +309,26 @@ fn weave_with_missing_view() {
     let result = run(&["weave", &views_s, "--board", &board, "--out", &out]);
     case.assert_failed_cleanly(&result, &["found 5 view_NN.png files", "6 views"]);
 }
+
+#[test]
+fn model_directory_without_the_default_int8_says_which_precisions_it_has() {
+    let case = Case::new();
+    let models = case.path("bad-models");
+    std::fs::create_dir(&models).unwrap();
+    let fixtures = Path::new(env!("CARGO_MANIFEST_DIR")).join("models/fixtures");
+    for half in ["encoder", "decoder"] {
+        for ext in ["json", "onnx"] {
+            let name = format!("reshade-fixture-fp32-{half}.{ext}");
+            std::fs::copy(fixtures.join(&name), Path::new(&models).join(&name)).unwrap();
+        }
+    }
+    let result = case.render(&case.photo, &case.depth, &["--model", &models]);
+    case.assert_failed_cleanly(
+        &result,
+        &[
+            "bad-models",
+            "precision int8",
+            "it has fp32 (--precision fp32)",
+        ],
+    );
+}

@@ -11,6 +11,7 @@ use std::sync::Arc;
 use crate::manifest::Precision;
 
 mod fp16;
+mod int8;
 pub mod tract;
 
 #[cfg(feature = "ort")]

@@ -8,7 +8,7 @@ use tract_onnx::prelude::multithread::{multithread_tract_scope, Executor};
 use tract_onnx::prelude::*;
 use tract_onnx::tract_core::plan::SimpleState;
 
-use super::{check_names, fp16, Engine, EngineError, ModelSource, Plan, Tensor};
+use super::{check_names, fp16, int8, Engine, EngineError, ModelSource, Plan, Tensor};
 use crate::manifest::Precision;
 
 const NAME: &str = "tract";
@@ -200,6 +200,18 @@ fn optimized(
     if model.precision == Precision::Fp16 {
         let n = fp16::widen_to_f32(&mut proto);
         log::debug!("{}: widened {n} fp16 tensors to f32", model.path.display());
+    }
+    if model.precision == Precision::Int8 {
+        let n =
+            int8::fold_weight_dequantization(&mut proto).map_err(|message| EngineError::Load {
+                engine: NAME,
+                path: model.path.to_owned(),
+                message,
+            })?;
+        log::debug!(
+            "{}: folded {n} int8 weight tensors to f32",
+            model.path.display()
+        );
     }
     let mut graph = onnx.model_for_proto_model(&proto).map_err(load)?;
     let names = input_names(&graph).map_err(load)?;

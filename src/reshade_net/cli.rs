@@ -20,9 +20,9 @@ pub struct ReshadeArgs {
     /// shading. Default: models/reshade, or $RESHADER_MODEL.
     #[arg(long)]
     pub model: Option<PathBuf>,
-    /// Model precision to load: int8 (the default: a quarter of fp32's weight bytes, at
-    /// fp32's speed in tract, which turns the int8 weights into f32 once at load), fp32 or
-    /// fp16. The model must have been exported at that precision; fp16 weights are
+    /// Model precision to load: int8 (the default: a quarter of fp32's weight bytes, within
+    /// 8 % of fp32's speed in tract, which turns the int8 weights into f32 once at load),
+    /// fp32 or fp16. The model must have been exported at that precision; fp16 weights are
     /// computed in f32 on CPUs without fp16 arithmetic.
     #[arg(long, default_value = "int8", value_parser = parse_precision)]
     pub precision: Precision,

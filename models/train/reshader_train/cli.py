@@ -27,6 +27,11 @@ COMMANDS = [
         "checkpoint from an exported fp32 encoder/decoder pair (e.g. to add a dead zone)",
     ),
     ("train", "reshader_train.train", "train the reshading network (single process or torchrun)"),
+    (
+        "average",
+        "reshader_train.average",
+        "checkpoint whose weights are the mean of several (e.g. a run's last ones)",
+    ),
     ("evaluate", "reshader_train.evaluate", "PSNR/SSIM of input vs reshaded on held-out data"),
     ("export", "reshader_train.export", "ONNX models (fp32/fp16/int8, single/split) + manifests"),
     ("quantize", "reshader_train.quantize", "quantisation-aware int8 fine-tuning of a checkpoint"),

@@ -576,7 +576,7 @@ def export_precision(
 # --- provenance from the checkpoint ---------------------------------------------------------
 
 
-def _train_command(ckpt_path: Path, ckpt: dict) -> str:
+def train_command(ckpt_path: Path, ckpt: dict) -> str:
     if ckpt.get("command"):  # `import` records the source's command and its own
         return ckpt["command"]
     config = ckpt_path.parent / "config.json"
@@ -593,7 +593,7 @@ def _train_command(ckpt_path: Path, ckpt: dict) -> str:
     return " ".join(shlex.quote(p) for p in parts)
 
 
-def _train_wall_time(ckpt_path: Path) -> float | None:
+def train_wall_time(ckpt_path: Path) -> float | None:
     """Sum of the training segments in log.csv (elapsed_s restarts at every resume)."""
     import csv
 
@@ -612,15 +612,15 @@ def _train_wall_time(ckpt_path: Path) -> float | None:
 
 def training_info(ckpt_path: Path, ckpt: dict) -> dict:
     args = ckpt.get("args") or {}
-    command = _train_command(ckpt_path, ckpt)
+    command = train_command(ckpt_path, ckpt)
     steps = int(ckpt.get("base_step", ckpt.get("step", 0)) or 0)
-    wall = _train_wall_time(ckpt_path) or ckpt.get("wall_time_s")
+    wall = train_wall_time(ckpt_path) or ckpt.get("wall_time_s")
     data = str(args.get("data", "unknown"))
     if "quantization" in ckpt:
         base = Path(ckpt["base_checkpoint"])
-        base_command = ckpt.get("base_command") or _train_command(base, ckpt)
+        base_command = ckpt.get("base_command") or train_command(base, ckpt)
         command = f"{base_command} && {ckpt['qat_command']}"
-        base_wall = _train_wall_time(base) or ckpt.get("base_wall_time_s") or 0.0
+        base_wall = train_wall_time(base) or ckpt.get("base_wall_time_s") or 0.0
         wall = float(base_wall) + float(ckpt.get("qat_wall_time_s", 0.0))
         steps += int(ckpt.get("qat_steps", 0))
         if ckpt.get("qat_data") and ckpt["qat_data"] != data:

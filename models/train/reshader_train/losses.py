@@ -65,10 +65,13 @@ RELATIVE_FLOOR_DB = 45.0
 
 
 def relative_l2(
-    pred: torch.Tensor, target: torch.Tensor, image: torch.Tensor | None
+    pred: torch.Tensor,
+    target: torch.Tensor,
+    image: torch.Tensor | None,
+    floor_db: float = RELATIVE_FLOOR_DB,
 ) -> torch.Tensor:
     """Per crop, the squared error divided by how much the truth differs from the input
-    (floored at RELATIVE_FLOOR_DB), averaged over the batch.
+    (floored at `floor_db`), averaged over the batch.
 
     The evaluation's mean PSNR is a mean of log(error): to first order, each image's error
     counts relative to its own change, so a faint residual on a view that hardly changes
@@ -79,7 +82,7 @@ def relative_l2(
         raise ValueError("the rel-l2 pixel loss needs the input image")
     err = (pred - target).square().flatten(1).mean(1)
     change = (target - image).square().flatten(1).mean(1)
-    return (err / (change + 10.0 ** (-RELATIVE_FLOOR_DB / 10.0))).mean()
+    return (err / (change + 10.0 ** (-floor_db / 10.0))).mean()
 
 
 # L1 is the paper's. With Monte-Carlo noise in the targets its optimum at a noisy pixel is
@@ -91,6 +94,26 @@ PIXEL_LOSSES = {
     "psnr": lambda pred, target, _image: negative_psnr(pred, target),
     "rel-l2": relative_l2,
 }
+
+
+def pixel_loss(name: str):
+    """The pixel loss called `name`. `rel-l2:DB` moves rel-l2's floor from 45 dB to DB: a
+    higher floor weighs views whose shading hardly changes more, so that a faint residual
+    there costs more."""
+    base, colon, floor = name.partition(":")
+    if base not in PIXEL_LOSSES or (colon and base != "rel-l2"):
+        raise ValueError(
+            f"pixel loss {name!r}: expected one of {sorted(PIXEL_LOSSES)} (or rel-l2:DB)"
+        )
+    if not colon:
+        return PIXEL_LOSSES[base]
+    try:
+        floor_db = float(floor)
+    except ValueError:
+        raise ValueError(
+            f"pixel loss {name!r}: the floor {floor!r} is not a number of dB"
+        ) from None
+    return lambda pred, target, image: relative_l2(pred, target, image, floor_db)
 
 
 def gram(features: torch.Tensor) -> torch.Tensor:
@@ -120,8 +143,7 @@ class ReshadeLoss(nn.Module):
         pixel: str = "l1",
     ) -> None:
         super().__init__()
-        if pixel not in PIXEL_LOSSES:
-            raise ValueError(f"pixel loss {pixel!r}: expected one of {sorted(PIXEL_LOSSES)}")
+        self.pixel_fn = pixel_loss(pixel)
         self.pixel = pixel
         self.weights = weights or LossWeights()
         if feature_net is None and self.weights.needs_features:
@@ -152,7 +174,7 @@ class ReshadeLoss(nn.Module):
         pred = pred * mask
         target = target * mask
         image = None if image is None else image * mask
-        pixel = PIXEL_LOSSES[self.pixel](pred, target, image)
+        pixel = self.pixel_fn(pred, target, image)
         w = self.weights
         if self.feature_net is None:
             vgg = style = torch.zeros((), device=pred.device)

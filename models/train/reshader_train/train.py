@@ -14,6 +14,7 @@ import json
 import os
 import random
 import shlex
+import shutil
 import sys
 import time
 from dataclasses import dataclass, replace
@@ -28,13 +29,21 @@ from torch.utils.data import DataLoader, DistributedSampler
 from .data import Augment, DatasetError, ReshadeDataset, list_examples
 from .evaluate import masked_psnr, reshade
 from .features import CHOICES, FeatureNetError
-from .losses import PIXEL_LOSSES, LossWeights, ReshadeLoss, make_loss
+from .losses import LossWeights, ReshadeLoss, make_loss, pixel_loss
 from .model import HEADS, NetConfig, ReshadeNet, count_parameters, net_config
 from .onnx_weights import load_onnx_weights
 
 CHECKPOINT = "checkpoint.pt"
 LOG_FIELDS = ("step", "lr", "loss", "pixel", "vgg", "style", "examples", "steps_per_s", "elapsed_s")
 VAL_FIELDS = ("step", "examples", "psnr_input", "psnr_ours", "gain_db")
+
+
+def checked_pixel_loss(name: str) -> str:
+    try:
+        pixel_loss(name)
+    except ValueError as err:
+        raise argparse.ArgumentTypeError(str(err)) from None
+    return name
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -77,11 +86,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--pixel-loss",
-        choices=tuple(PIXEL_LOSSES),
+        type=checked_pixel_loss,
         default="l1",
         help="the pixel term: l1 (the paper's), l2 (mean squared error), psnr (minus the "
         "per-crop PSNR, the evaluation's measure) or rel-l2 (per crop, the squared error over "
-        "how much the truth differs from the input: the evaluation's emphasis, fixed by the data)",
+        "how much the truth differs from the input: the evaluation's emphasis, fixed by the "
+        "data); rel-l2:DB floors that change at DB instead of 45 (higher: unchanged views "
+        "weigh more)",
     )
     p.add_argument("--feature-net", choices=CHOICES, default="auto")
     p.add_argument("--vgg-weights", help="torchvision VGG-19 state dict (the paper's network)")
@@ -99,6 +110,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "encoder and decoder) instead of random ones; ignored when the run resumes",
     )
     p.add_argument("--checkpoint-every", type=int, default=500)
+    p.add_argument(
+        "--keep-checkpoints",
+        action="store_true",
+        help="also keep each checkpoint as checkpoint-<step>.pt (for `reshader-train average`)",
+    )
     p.add_argument("--log-every", type=int, default=20)
     p.add_argument("--val-every", type=int, default=1000)
     p.add_argument("--val-examples", type=int, default=16)
@@ -194,7 +210,9 @@ def load_resume(run_dir: Path, cfg: NetConfig, device: torch.device) -> dict | N
     return ckpt
 
 
-def save_checkpoint(run_dir: Path, net: ReshadeNet, opt, step: int, meta: dict) -> None:
+def save_checkpoint(
+    run_dir: Path, net: ReshadeNet, opt, step: int, meta: dict, keep: bool = False
+) -> None:
     state = {
         "model": net.state_dict(),
         "optimizer": opt.state_dict(),
@@ -203,6 +221,8 @@ def save_checkpoint(run_dir: Path, net: ReshadeNet, opt, step: int, meta: dict) 
         **meta,
     }
     atomic_write(run_dir / CHECKPOINT, lambda tmp: torch.save(state, tmp))
+    if keep:
+        shutil.copyfile(run_dir / CHECKPOINT, run_dir / f"checkpoint-{step}.pt")
 
 
 @torch.no_grad()
@@ -455,7 +475,7 @@ def train(args: argparse.Namespace) -> ReshadeNet:
             step += 1
             log.step(step, parts, lr, len(dataset))
             if d.main and (step % args.checkpoint_every == 0 or step == args.steps):
-                save_checkpoint(args.run_dir, net, opt, step, meta)
+                save_checkpoint(args.run_dir, net, opt, step, meta, args.keep_checkpoints)
             if val is not None and (step % args.val_every == 0 or step == args.steps):
                 if args.rescan and len(val) < args.val_examples:
                     val = ReshadeDataset(args.val_data)

@@ -201,3 +201,16 @@ def test_relative_l2_needs_the_input_image():
         loss(x, x, mask)
     total, parts = loss(x, x + 0.1, mask, x)
     assert parts["pixel"] == pytest.approx(0.01 / (0.01 + 10**-4.5), rel=1e-3)
+
+
+def test_relative_l2_floor_is_set_by_the_loss_name():
+    x = torch.rand(1, 3, 8, 8)
+    mask = torch.ones(1, 1, 8, 8)
+    still = x.clone()  # the truth does not change: only the floor weighs the error
+    _, at45 = ReshadeLoss(None, LossWeights(1, 0, 0), pixel="rel-l2")(x + 0.01, still, mask, x)
+    _, at55 = ReshadeLoss(None, LossWeights(1, 0, 0), pixel="rel-l2:55")(x + 0.01, still, mask, x)
+    assert at45["pixel"] == pytest.approx(1e-4 / 10**-4.5, rel=1e-3)
+    assert at55["pixel"] == pytest.approx(1e-4 / 10**-5.5, rel=1e-3)
+    for bad in ("rel-l2:high", "l2:50", "l3"):
+        with pytest.raises(ValueError, match="pixel loss"):
+            ReshadeLoss(None, LossWeights(1, 0, 0), pixel=bad)

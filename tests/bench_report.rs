@@ -223,7 +223,7 @@ fn the_cli_defaults_are_the_issue_s_cases() {
     assert_eq!(args.synthetic, (4000, 3000));
     assert!(args.runs >= 3);
     // The reshading options are render's own, so the bench times what render runs.
-    assert_eq!(args.reshade.precision, Precision::Int8);
+    assert_eq!(args.reshade.precision_for(None), Precision::Int8);
     assert!(args.reshade.model.is_none());
 }
 

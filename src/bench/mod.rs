@@ -258,9 +258,10 @@ pub fn run(args: &BenchArgs, command: &str) -> Result<Report, BenchError> {
     let r = &args.reshade;
     let threads = r.reshade_threads.unwrap_or(args.threads);
     let per_view = (threads / r.parallel_views.max(1)).max(1);
+    let precision = r.precision_for(Some(model.path()));
     let reshader = NetReshader::load(
         model.path(),
-        r.precision,
+        precision,
         engine::by_name(&r.engine, per_view)?,
         r.options(),
     )?;
@@ -275,7 +276,7 @@ pub fn run(args: &BenchArgs, command: &str) -> Result<Report, BenchError> {
     } else {
         Some(NetReshader::load(
             model.path(),
-            r.precision,
+            precision,
             engine::by_name(&r.engine, per_view)?,
             candidate_options,
         )?)
@@ -376,7 +377,7 @@ fn reshade_label(net: &NetReshader) -> String {
 /// --model, else $RESHADER_MODEL, else models/reshade when it has the precision asked
 /// for, else the untrained stand-in (exported once), else the fixture.
 pub fn choose_model(args: &BenchArgs) -> Result<ModelChoice, BenchError> {
-    let precision = args.reshade.precision;
+    let precision = args.reshade.precision_for(args.reshade.model.as_deref());
     if let Some(p) = args
         .reshade
         .model

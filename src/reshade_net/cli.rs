@@ -20,12 +20,13 @@ pub struct ReshadeArgs {
     /// shading. Default: models/reshade, or $RESHADER_MODEL.
     #[arg(long)]
     pub model: Option<PathBuf>,
-    /// Model precision to load: int8 (the default: a quarter of fp32's weight bytes, within
-    /// 8 % of fp32's speed in tract, which turns the int8 weights into f32 once at load),
-    /// fp32 or fp16. The model must have been exported at that precision; fp16 weights are
-    /// computed in f32 on CPUs without fp16 arithmetic.
-    #[arg(long, default_value = "int8", value_parser = parse_precision)]
-    pub precision: Precision,
+    /// Model precision to load: int8 (the default for a model directory: a quarter of
+    /// fp32's weight bytes, within 8 % of fp32's speed in tract, which turns the int8
+    /// weights into f32 once at load), fp32 or fp16. A --model manifest file is loaded at
+    /// its own precision unless this is given. The model must have been exported at that
+    /// precision; fp16 weights are computed in f32 on CPUs without fp16 arithmetic.
+    #[arg(long, value_parser = parse_precision)]
+    pub precision: Option<Precision>,
     /// Inference engine: tract (built in), or ort (onnxruntime from $ORT_DYLIB_PATH; needs
     /// a build with --features ort).
     #[arg(long, default_value = "tract")]
@@ -54,7 +55,20 @@ fn parse_precision(s: &str) -> Result<Precision, String> {
     s.parse()
 }
 
+/// The precision a model directory is searched for when `--precision` is not given.
+pub const DEFAULT_PRECISION: Precision = Precision::Int8;
+
 impl ReshadeArgs {
+    /// `--precision`, else the precision of the manifest file `model` names, else int8.
+    pub fn precision_for(&self, model: Option<&Path>) -> Precision {
+        self.precision.unwrap_or_else(|| {
+            model
+                .filter(|p| p.is_file())
+                .and_then(|p| crate::manifest::Manifest::load(p).ok())
+                .map_or(DEFAULT_PRECISION, |m| m.precision)
+        })
+    }
+
     pub fn options(&self) -> NetOptions {
         NetOptions {
             scale: self.reshade_scale,
@@ -92,7 +106,8 @@ impl ReshadeArgs {
         let threads = self.reshade_threads.unwrap_or(cores);
         let per_view = (threads / self.parallel_views.max(1)).max(1);
         let engine = engine::by_name(&self.engine, per_view)?;
-        let net = NetReshader::load(&path, self.precision, engine, self.options())?;
+        let precision = self.precision_for(Some(&path));
+        let net = NetReshader::load(&path, precision, engine, self.options())?;
         log::info!("reshading with {}", net.description());
         Ok(Box::new(net))
     }

@@ -17,6 +17,7 @@ from pathlib import Path
 
 import torch
 
+from .evaluate import read_checkpoint
 from .export import train_command, train_wall_time
 from .train import atomic_write
 
@@ -26,17 +27,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", type=Path, required=True, help="checkpoint to write (.pt)")
 
 
-def load(path: Path) -> dict:
-    if not path.is_file():
-        raise ValueError(f"{path}: checkpoint not found")
-    ckpt = torch.load(path, map_location="cpu", weights_only=False)
-    if "model" not in ckpt or "net_config" not in ckpt:
-        raise ValueError(f"{path}: not a reshader training checkpoint (no model/net_config)")
-    return ckpt
-
-
 def average(paths: list[Path], argv_line: str) -> dict:
-    checkpoints = [load(p) for p in paths]
+    checkpoints = [read_checkpoint(p) for p in paths]
     first = checkpoints[0]
     for path, ckpt in zip(paths[1:], checkpoints[1:], strict=True):
         if ckpt["net_config"] != first["net_config"]:
@@ -67,7 +59,7 @@ def run(args: argparse.Namespace) -> int:
     line += f" --out {shlex.quote(str(args.out))}"
     try:
         state = average(args.checkpoints, line)
-    except ValueError as err:
+    except (FileNotFoundError, ValueError) as err:
         print(f"average: {err}", file=sys.stderr)
         return 2
     args.out.parent.mkdir(parents=True, exist_ok=True)

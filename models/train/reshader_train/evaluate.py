@@ -93,18 +93,29 @@ def reshade(net: ReshadeNet, image: torch.Tensor, disparity: torch.Tensor, camer
     return out[0, :, :h, :w].clamp(0.0, 1.0)
 
 
-def load_checkpoint_model(
-    path: Path, device: torch.device | str = "cpu"
-) -> tuple[ReshadeNet, dict]:
+def read_checkpoint(path: Path, device: torch.device | str = "cpu") -> dict:
+    """A checkpoint's dictionary, refused unless it holds a model and its network config."""
     if not Path(path).is_file():
         raise FileNotFoundError(f"{path}: checkpoint not found")
     ckpt = torch.load(path, map_location=device, weights_only=False)
     if "model" not in ckpt or "net_config" not in ckpt:
         raise ValueError(f"{path}: not a reshader training checkpoint (no model/net_config)")
+    return ckpt
+
+
+def model_from_checkpoint(ckpt: dict, device: torch.device | str = "cpu") -> ReshadeNet:
+    """The float network a checkpoint read by `read_checkpoint` holds, in evaluation mode."""
     net = ReshadeNet(NetConfig.from_json(ckpt["net_config"])).to(device)
     net.load_state_dict(ckpt["model"])
     net.eval()
-    return net, ckpt
+    return net
+
+
+def load_checkpoint_model(
+    path: Path, device: torch.device | str = "cpu"
+) -> tuple[ReshadeNet, dict]:
+    ckpt = read_checkpoint(path, device)
+    return model_from_checkpoint(ckpt, device), ckpt
 
 
 def lpips_metric():

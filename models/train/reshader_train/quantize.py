@@ -199,14 +199,11 @@ def build_quantized(cfg: NetConfig, state: dict) -> ReshadeNet:
 
 def load_any_checkpoint(path: Path) -> tuple[ReshadeNet, dict]:
     """A float training checkpoint or a quantised one written by `quantize` (evaluation mode)."""
-    from .evaluate import load_checkpoint_model
+    from .evaluate import model_from_checkpoint, read_checkpoint
 
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: checkpoint not found")
-    ckpt = torch.load(path, map_location="cpu", weights_only=False)
+    ckpt = read_checkpoint(path)
     if "quantization" not in ckpt:
-        return load_checkpoint_model(path)
+        return model_from_checkpoint(ckpt), ckpt
     try:
         net = build_quantized(NetConfig.from_json(ckpt["net_config"]), ckpt["model"])
     except (KeyError, RuntimeError) as err:

@@ -4,7 +4,8 @@ The last steps of a run at a constant learning rate wander around a minimum; the
 their weights sits nearer its centre and scores better on held-out views than any of them
 (session 8: four checkpoints 1,000 steps apart, +0.45 dB against +0.31 to +0.39 dB each).
 The checkpoints must come from the same network (size, head, dead zone). The result
-keeps the provenance of the last one, with this command appended, and no optimiser state:
+keeps the provenance of the last one, the training command of every run they come from
+with this command appended, and no optimiser state:
 it is for `evaluate`, `quantize`, `export` and `examples`, not for resuming.
 """
 
@@ -43,10 +44,13 @@ def average(paths: list[Path], argv_line: str) -> dict:
         for name, tensor in checkpoints[-1]["model"].items()
     }
     last = {k: v for k, v in checkpoints[-1].items() if k != "optimizer"}
+    # Checkpoints from several runs (arms that started from one point) keep every run's
+    # command, in the order their first checkpoint was given.
+    runs = list(dict.fromkeys(train_command(p, c) for p, c in zip(paths, checkpoints, strict=True)))
     return {
         **last,
         "model": weights,
-        "command": f"{train_command(paths[-1], last)} && {argv_line}",
+        "command": f"{' ; '.join(runs)} && {argv_line}",
         "wall_time_s": train_wall_time(paths[-1]) or last.get("wall_time_s"),
         "averaged_from": [
             {"file": str(p), "step": c.get("step")} for p, c in zip(paths, checkpoints, strict=True)

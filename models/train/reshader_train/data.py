@@ -144,6 +144,11 @@ class Augment:
     gamma: tuple[float, float] = GAMMA_RANGE
     disparity_scale: tuple[float, float] = DISPARITY_SCALE_RANGE
     flip: bool = True
+    # All eight symmetries of a square crop (mirrors in x and y, and the transpose) instead
+    # of the x mirror alone. A square render from a centred pinhole camera mirrored or
+    # transposed is a render of the mirrored or transposed scene, so each is a valid example;
+    # off by default so that earlier training commands still reproduce.
+    dihedral: bool = False
     # Share of samples posed from the photo's own camera, whose truth is the photo itself:
     # no rendered pair has offset 0 (the shell starts at 0.1), yet a display's centre views
     # sit there, and a network never shown it drifts from the identity.
@@ -152,6 +157,23 @@ class Augment:
 
 def _log_uniform(rng: np.random.Generator, lo: float, hi: float) -> float:
     return math.exp(rng.uniform(math.log(lo), math.log(hi)))
+
+
+def _mirror_y_and_transpose(
+    rng: np.random.Generator, planes: tuple[np.ndarray, ...], camera: np.ndarray
+) -> tuple[np.ndarray, ...]:
+    """With the x mirror, completes the square's eight symmetries. The camera frame is
+    OpenCV's (x right, y down), so mirroring rows negates ty and swapping rows with
+    columns swaps tx and ty. Non-square planes are never transposed (a batch of them
+    would no longer stack)."""
+    if rng.random() < 0.5:
+        planes = tuple(a[::-1] for a in planes)
+        camera[1] = -camera[1]
+    h, w = planes[0].shape[:2]
+    if h == w and rng.random() < 0.5:
+        planes = tuple(a.swapaxes(0, 1) for a in planes)
+        camera[[0, 1]] = camera[[1, 0]]
+    return (*planes, camera)
 
 
 def make_sample(
@@ -191,6 +213,10 @@ def make_sample(
             # A mirrored scene seen from the mirrored camera: x flips, so does tx.
             hdr_in, hdr_gt, disp, mask = (a[:, ::-1] for a in (hdr_in, hdr_gt, disp, mask))
             camera[0] = -camera[0]
+        if aug.dihedral:
+            hdr_in, hdr_gt, disp, mask, camera = _mirror_y_and_transpose(
+                rng, (hdr_in, hdr_gt, disp, mask), camera
+            )
         if rng.random() < aug.still:
             hdr_gt, mask, camera = hdr_in, np.ones_like(mask), np.zeros_like(camera)
     else:

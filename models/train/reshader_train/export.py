@@ -682,6 +682,16 @@ def _load_metrics(path: Path | None) -> dict | None:
     return data
 
 
+def quantize_check(ckpt: dict) -> dict:
+    """The held-out scores `quantize` measured (input, fp32, fp16, PTQ and QAT in both int8
+    forms), with where and how, for the int8 manifest."""
+    return {
+        "command": ckpt.get("qat_command"),
+        "target": ckpt.get("quantization", {}).get("qat_target"),
+        **ckpt["validation"],
+    }
+
+
 def networks_for(args, net: ReshadeNet, ckpt: dict) -> dict[str, tuple[ReshadeNet, str]]:
     """precision -> (network, name suffix); PTQ int8 models are named ...-int8-ptq."""
     quantized = is_quantized(net)
@@ -732,6 +742,8 @@ def run(args: argparse.Namespace) -> int:
                 }
                 if args.int8_form == "weights":
                     suffix += "-wo"
+                if method == "qat" and ckpt.get("validation"):
+                    validation["quantize_check"] = quantize_check(ckpt)
             info = ExportInfo(
                 size=size,
                 version=args.version,

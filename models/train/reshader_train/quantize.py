@@ -177,10 +177,10 @@ def calibrate(net: ReshadeNet, batches) -> int:
 
 
 def training_crops(
-    root: Path, count: int, batch_size: int, crop: int, seed: int
+    root: Path, count: int, batch_size: int, crop: int, seed: int, augment: Augment | None = None
 ) -> Iterator[dict[str, torch.Tensor]]:
     """`count` batches of augmented training crops from a dataset folder, reproducible by seed."""
-    dataset = ReshadeDataset(root, crop=crop, augment=Augment())
+    dataset = ReshadeDataset(root, crop=crop, augment=augment or Augment())
     torch.manual_seed(seed)  # the dataset seeds its augmentation generator from torch
     order = np.random.default_rng(seed).permutation(max(len(dataset), count * batch_size))
     for i in range(count):
@@ -235,7 +235,12 @@ def command_line(command: str, args: argparse.Namespace, positional: tuple[str, 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("checkpoint", type=Path, help="fp32 training checkpoint (.pt)")
     p.add_argument("--data", type=Path, required=True, help="training dataset folder")
-    p.add_argument("--val-data", type=Path, help="held-out folder: PSNR of fp32 / PTQ / QAT")
+    p.add_argument(
+        "--val-data",
+        type=Path,
+        nargs="+",
+        help="held-out folder(s): PSNR and SSIM of the input, fp32, fp16, PTQ and QAT",
+    )
     p.add_argument("--out", type=Path, required=True, help="quantised checkpoint to write (.pt)")
     p.add_argument("--steps", type=int, default=2000, help="fine-tuning steps")
     p.add_argument("--lr", type=float, default=1e-5)
@@ -256,9 +261,18 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "int8 convolutions) or weights (int8 weights, float activations: the form shipped "
         "for tract); export with the same --int8-form",
     )
+    p.add_argument(
+        "--target",
+        choices=("fp32", "truth"),
+        default="fp32",
+        help="what the quantised network learns to match: fp32 (the float checkpoint's own "
+        "output on each crop: distillation, which keeps what the float network learned and "
+        "only undoes what quantisation changed) or truth (the rendered reshaded image, as "
+        "training does; from a mean of checkpoints even lr 2e-6 loses held-out PSNR)",
+    )
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--threads", type=int, default=0, help="torch threads (0: default)")
-    p.add_argument("--val-examples", type=int, default=16)
+    p.add_argument("--val-examples", type=int, default=16, help="first N views of each folder")
     p.add_argument(
         "--loss-weights",
         help="PIXEL,VGG,STYLE as for train (default: the weights the checkpoint was trained with)",
@@ -270,30 +284,51 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 @torch.no_grad()
-def held_out_psnr(net: ReshadeNet, root: Path, count: int) -> dict[str, float]:
-    from .evaluate import masked_psnr, reshade
+def held_out_scores(
+    net: ReshadeNet, roots: list[Path], count: int, half: bool = False
+) -> dict[str, float]:
+    """Mean PSNR and SSIM (masked, evaluation tone mapping) of the input and of `net` on the
+    first `count` views of each folder; `half` runs the network in fp16, as the fp16 export."""
+    from .evaluate import masked_psnr, masked_ssim, reshade
 
     net.eval()
-    val = ReshadeDataset(root, crop=None, augment=None)
-    pin, pout = [], []
-    for i in range(min(count, len(val))):
-        s = val[i]
-        pin.append(masked_psnr(s["image"], s["target"], s["mask"]))
-        ours = reshade(net, s["image"], s["disparity"], s["camera"])
-        pout.append(masked_psnr(ours, s["target"], s["mask"]))
-    return {"psnr_input": float(np.mean(pin)), "psnr": float(np.mean(pout)), "count": len(pin)}
+    model = copy.deepcopy(net).half() if half else net
+    scores: dict[str, list[float]] = {"psnr_input": [], "psnr": [], "ssim_input": [], "ssim": []}
+    for root in roots:
+        val = ReshadeDataset(root, crop=None, augment=None)
+        for i in range(min(count, len(val))):
+            s = val[i]
+            inputs = (s["image"], s["disparity"], s["camera"])
+            ours = reshade(model, *(t.half() if half else t for t in inputs)).float()
+            scores["psnr_input"].append(masked_psnr(s["image"], s["target"], s["mask"]))
+            scores["psnr"].append(masked_psnr(ours, s["target"], s["mask"]))
+            scores["ssim_input"].append(masked_ssim(s["image"], s["target"], s["mask"]))
+            scores["ssim"].append(masked_ssim(ours, s["target"], s["mask"]))
+    return {**{k: float(np.mean(v)) for k, v in scores.items()}, "count": len(scores["psnr"])}
 
 
-def int8_scores(net: ReshadeNet, root: Path, count: int, method: str) -> dict[str, dict]:
-    """Held-out PSNR of both exported int8 forms: `qdq` (conv inputs and weights
+def int8_scores(net: ReshadeNet, roots: list[Path], count: int, method: str) -> dict[str, dict]:
+    """Held-out scores of both exported int8 forms: `qdq` (conv inputs and weights
     quantised, as trained) and `weights` (int8 weights, float activations; the form
     shipped for tract)."""
     weights_only = copy.deepcopy(net)
     set_input_quantization(weights_only, False)
     return {
-        f"int8_{method}": held_out_psnr(net, root, count),
-        f"int8_{method}_weights": held_out_psnr(weights_only, root, count),
+        f"int8_{method}": held_out_scores(net, roots, count),
+        f"int8_{method}_weights": held_out_scores(weights_only, roots, count),
     }
+
+
+def augment_of(ckpt: dict) -> Augment:
+    """The augmentation the checkpoint was trained with, so that QAT sees the same crops."""
+    return Augment(dihedral=bool(ckpt.get("args", {}).get("dihedral", False)))
+
+
+def qat_target(float_net: ReshadeNet, batch: dict[str, torch.Tensor], target: str) -> torch.Tensor:
+    if target == "truth":
+        return batch["target"]
+    with torch.no_grad():
+        return float_net(batch["image"], batch["disparity"], batch["camera"])
 
 
 def qat(args: argparse.Namespace) -> dict:
@@ -310,7 +345,8 @@ def qat(args: argparse.Namespace) -> dict:
     )
     validation: dict[str, dict] = {}
     if args.val_data:
-        validation["fp32"] = held_out_psnr(float_net, args.val_data, args.val_examples)
+        validation["fp32"] = held_out_scores(float_net, args.val_data, args.val_examples)
+        validation["fp16"] = held_out_scores(float_net, args.val_data, args.val_examples, True)
         validation.update(int8_scores(net, args.val_data, args.val_examples, "ptq"))
 
     weights = LossWeights.parse(args.loss_weights or base.get("loss_weights") or str(LossWeights()))
@@ -332,13 +368,16 @@ def qat(args: argparse.Namespace) -> dict:
     set_input_quantization(net, args.form == "qdq")
     opt = torch.optim.Adam(net.parameters(), lr=args.lr)
     freeze_at = int(args.freeze_observers * args.steps)
-    crops = training_crops(args.data, args.steps, args.batch_size, args.crop, args.seed + 1)
+    crops = training_crops(
+        args.data, args.steps, args.batch_size, args.crop, args.seed + 1, augment_of(base)
+    )
+    float_net.eval()
     net.train()
     for step, b in enumerate(crops):
         observing = step < freeze_at
         set_mode(net, enabled=True, observing=observing, momentum=EMA_MOMENTUM)
         pred = net(b["image"], b["disparity"], b["camera"])
-        loss, parts = criterion(pred, b["target"], b["mask"], b["image"])
+        loss, parts = criterion(pred, qat_target(float_net, b, args.target), b["mask"], b["image"])
         if not torch.isfinite(loss):
             raise FloatingPointError(f"QAT loss is {float(loss)} at step {step}: {parts}")
         opt.zero_grad(set_to_none=True)
@@ -358,6 +397,7 @@ def qat(args: argparse.Namespace) -> dict:
             **SCHEME,
             "method": "qat",
             "qat_form": args.form,
+            "qat_target": args.target,
             "calibration_batches": args.calib_batches,
         },
         "step": int(base.get("step", 0)) + args.steps,

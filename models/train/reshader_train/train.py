@@ -69,6 +69,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--steps", type=int, default=20000, help="total optimiser steps")
     p.add_argument("--batch-size", type=int, default=4, help="per process")
     p.add_argument("--crop", type=int, default=128, help="random square crop (paper: 384)")
+    p.add_argument(
+        "--dihedral",
+        action="store_true",
+        help="augment with all eight symmetries of the square crop (x and y mirrors and the "
+        "transpose, camera moved to match) instead of the x mirror alone: four times the "
+        "geometric variety from the same renders",
+    )
     p.add_argument("--lr", type=float, default=1e-4)
     p.add_argument("--lr-final", type=float, default=1e-5)
     p.add_argument(
@@ -260,7 +267,11 @@ def make_loader(
     # this process (--workers 0) can be carried over to the re-listed dataset.
     reuse = previous if args.workers == 0 else None
     dataset = ReshadeDataset(
-        folders, crop=args.crop, augment=Augment(), cache=not args.no_cache, reuse=reuse
+        folders,
+        crop=args.crop,
+        augment=Augment(dihedral=args.dihedral),
+        cache=not args.no_cache,
+        reuse=reuse,
     )
     sampler = DistributedSampler(
         dataset, num_replicas=d.world, rank=d.rank, shuffle=True, seed=args.seed, drop_last=True

@@ -19,7 +19,7 @@ def save(path, widths, fill, step, run_command=None):
 
 
 def test_average_is_the_mean_of_the_weights_and_keeps_provenance(tmp_path, capsys):
-    save(tmp_path / "a.pt", TINY, 1.0, 100)
+    save(tmp_path / "a.pt", TINY, 1.0, 100, run_command="reshader-train train --steps 200")
     save(tmp_path / "b.pt", TINY, 2.0, 200, run_command="reshader-train train --steps 200")
     save(tmp_path / "c.pt", TINY, 6.0, 300, run_command="reshader-train train --steps 300")
     out = tmp_path / "avg" / "mean.pt"
@@ -30,7 +30,11 @@ def test_average_is_the_mean_of_the_weights_and_keeps_provenance(tmp_path, capsy
     assert weights and all(torch.allclose(t, torch.full_like(t, 3.0)) for t in weights)
     assert ckpt["step"] == 300 and "optimizer" not in ckpt
     assert [a["step"] for a in ckpt["averaged_from"]] == [100, 200, 300]
-    assert ckpt["command"].startswith("reshader-train train --steps 300 && reshader-train average")
+    # Each run's command once, in order: two arms of one start, then their mean.
+    assert ckpt["command"].startswith(
+        "reshader-train train --steps 200 ; reshader-train train --steps 300 && "
+        "reshader-train average"
+    )
     assert "steps 100, 200, 300" in capsys.readouterr().out
     net = ReshadeNet(net_config(TINY))
     net.load_state_dict(ckpt["model"])

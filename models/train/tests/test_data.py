@@ -126,6 +126,39 @@ def test_flip_mirrors_image_and_camera():
     assert torch.allclose(flipped["camera"][1:], torch.from_numpy(ex.offset[1:]))
 
 
+def test_dihedral_moves_the_camera_with_the_image():
+    ex = fake_example()
+    d, (tx, ty, tz) = ex.disparity, ex.offset
+    # Each y mirror / transpose of the planes, with the camera it implies (x right, y down).
+    expected = {
+        "none": (d, (tx, ty)),
+        "y mirror": (d[::-1], (tx, -ty)),
+        "transpose": (d.T, (ty, tx)),
+        "y mirror, transpose": (d[::-1].T, (-ty, tx)),
+    }
+    aug = Augment(disparity_scale=(1.0, 1.0), flip=False, still=0.0, dihedral=True)
+    seen = set()
+    for seed in range(40):
+        s = make_sample(ex, None, np.random.default_rng(seed), aug)
+        match = [
+            k for k, (plane, cam) in expected.items()
+            if np.array_equal(s["disparity"][0].numpy(), plane)
+            and np.allclose(s["camera"].numpy(), [*cam, tz])
+        ]  # fmt: skip
+        assert len(match) == 1, f"seed {seed}: camera {s['camera']} matches no symmetry"
+        seen.add(match[0])
+    assert seen == set(expected)
+
+
+def test_dihedral_never_transposes_a_non_square_sample():
+    ex = fake_example(16, 24)
+    aug = Augment(disparity_scale=(1.0, 1.0), still=0.0, dihedral=True)
+    for seed in range(20):
+        s = make_sample(ex, None, np.random.default_rng(seed), aug)
+        assert s["disparity"].shape == (1, 16, 24)
+        assert abs(float(s["camera"][0])) == pytest.approx(0.2)
+
+
 def test_evaluation_sample_uses_fixed_tone_mapping(root):
     ex = load_example(root / "00002")
     s = make_sample(ex, None, None, None)

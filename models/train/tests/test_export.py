@@ -260,11 +260,16 @@ def test_quantize_fine_tunes_and_exports_qat(data, tmp_path):
     assert state["quantization"]["method"] == "qat"
     assert set(state["validation"]) == {
         "fp32",
+        "fp16",
         "int8_ptq",
         "int8_ptq_weights",
         "int8_qat",
         "int8_qat_weights",
     }
+    fp32, fp16 = state["validation"]["fp32"], state["validation"]["fp16"]
+    assert set(fp32) == {"psnr_input", "psnr", "ssim_input", "ssim", "count"}
+    assert fp32["count"] == 1 and fp16["psnr_input"] == fp32["psnr_input"]
+    assert fp16["psnr"] == pytest.approx(fp32["psnr"], abs=0.05)
     moved = (
         state["model"]["encoder.blocks.0.0.conv.weight"]
         - net.state_dict()["encoder.blocks.0.0.weight"]
@@ -275,6 +280,9 @@ def test_quantize_fine_tunes_and_exports_qat(data, tmp_path):
                      "--height", "32", "--width", "64"]) == 0  # fmt: skip
     m = json.loads((out / "reshade-custom-int8-decoder.json").read_text())
     assert m["validation"]["quantization"]["method"] == "qat"
+    check = m["validation"]["quantize_check"]
+    assert check["target"] == "fp32" and "reshader-train quantize" in check["command"]
+    assert check["int8_qat_weights"]["count"] == 1
     assert m["training"]["steps"] == 7
     assert "reshader-train quantize" in m["training"]["command"]
     assert "--steps 2" in m["training"]["command"]
@@ -365,6 +373,7 @@ def test_quantize_weights_form_fine_tunes_with_float_activations(data, tmp_path,
     assert calls["n"] == 0
     state = torch.load(tmp_path / "w.pt", weights_only=False)
     assert state["quantization"]["qat_form"] == "weights"
+    assert state["quantization"]["qat_target"] == "fp32"
     assert cli.main(argv + ["--out", str(tmp_path / "q.pt")]) == 0
     assert calls["n"] > 0
 
@@ -430,3 +439,16 @@ def test_import_rebuilds_a_checkpoint_from_an_exported_pair(nets, tmp_path, caps
     assert cli.main(["import", str(bare), "--out", str(tmp_path / "x.pt")]) == 2
     assert "bare.json" in capsys.readouterr().err
     assert not (tmp_path / "x.pt").exists()
+
+
+def test_qat_learns_the_float_output_or_the_truth(data):
+    from reshader_train.quantize import qat_target
+
+    torch.manual_seed(0)
+    net = ReshadeNet(net_config(TINY)).eval()
+    batch = next(training_crops(data, 1, 2, 32, 0))
+    assert torch.equal(qat_target(net, batch, "truth"), batch["target"])
+    distilled = qat_target(net, batch, "fp32")
+    assert not distilled.requires_grad
+    assert torch.equal(distilled, net(batch["image"], batch["disparity"], batch["camera"]))
+    assert not torch.equal(distilled, batch["target"])

@@ -182,3 +182,18 @@ def test_rescan_decodes_each_example_once(data, tmp_path, monkeypatch):
     train(args)
     decoded = [f for f in decoded if f.parent == data[0]]
     assert len(decoded) == len(set(decoded)) == 4
+
+
+def test_dihedral_reaches_the_loader_and_quantize(data, tmp_path, monkeypatch):
+    import reshader_train.train as train_module
+    from reshader_train.quantize import augment_of
+
+    made = []
+    real = train_module.Augment
+    monkeypatch.setattr(train_module, "Augment", lambda **kw: made.append(kw) or real(**kw))
+    run = tmp_path / "dihedral"
+    train(train_args(data, run, 2, dihedral=True))
+    assert made and all(kw == {"dihedral": True} for kw in made)
+    ckpt = torch.load(run / "checkpoint.pt", weights_only=False)
+    assert augment_of(ckpt).dihedral
+    assert not augment_of({"args": {}}).dihedral

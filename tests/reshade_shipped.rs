@@ -18,6 +18,20 @@ fn shipped() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("models/reshade")
 }
 
+/// The one int8 encoder shipped (its name says PTQ or QAT, and the int8 form).
+fn shipped_int8_encoder() -> PathBuf {
+    let found: Vec<PathBuf> = std::fs::read_dir(shipped())
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| {
+            let name = p.file_name().unwrap().to_string_lossy();
+            name.starts_with("reshade-lite-int8") && name.ends_with("-encoder.onnx")
+        })
+        .collect();
+    assert_eq!(found.len(), 1, "int8 encoders shipped: {found:?}");
+    found.into_iter().next().unwrap()
+}
+
 struct Example {
     name: String,
     photo: SrgbImage,
@@ -180,7 +194,7 @@ fn int8_improves_the_views_as_fp32_does() {
 fn int8_weights_folded_at_load_compute_what_the_int8_graph_computes() {
     // The same bytes planned as int8 (tract gets f32 weights folded from the int8 ones)
     // and as fp32 (tract runs the graph's DequantizeLinear nodes itself) must agree.
-    let path = shipped().join("reshade-lite-int8-ptq-wo-encoder.onnx");
+    let path = shipped_int8_encoder();
     let bytes = std::fs::read(&path).unwrap();
     let (h, w) = (64, 96);
     let ramp = |n: usize, k: usize| -> Vec<f32> {

@@ -371,7 +371,6 @@ def qat(args: argparse.Namespace) -> dict:
     crops = training_crops(
         args.data, args.steps, args.batch_size, args.crop, args.seed + 1, augment_of(base)
     )
-    float_net.eval()
     net.train()
     for step, b in enumerate(crops):
         observing = step < freeze_at

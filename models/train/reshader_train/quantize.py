@@ -283,39 +283,47 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--log-every", type=int, default=50)
 
 
+def held_out_samples(roots: list[Path], count: int) -> list[dict[str, torch.Tensor]]:
+    """The first `count` views of each folder, decoded once for every precision's scores."""
+    samples = []
+    for root in roots:
+        val = ReshadeDataset(root, crop=None, augment=None)
+        samples += [val[i] for i in range(min(count, len(val)))]
+    return samples
+
+
 @torch.no_grad()
 def held_out_scores(
-    net: ReshadeNet, roots: list[Path], count: int, half: bool = False
+    net: ReshadeNet, samples: list[dict[str, torch.Tensor]], half: bool = False
 ) -> dict[str, float]:
     """Mean PSNR and SSIM (masked, evaluation tone mapping) of the input and of `net` on the
-    first `count` views of each folder; `half` runs the network in fp16, as the fp16 export."""
+    held-out `samples`; `half` runs the network in fp16, as the fp16 export."""
     from .evaluate import masked_psnr, masked_ssim, reshade
 
     net.eval()
     model = copy.deepcopy(net).half() if half else net
     scores: dict[str, list[float]] = {"psnr_input": [], "psnr": [], "ssim_input": [], "ssim": []}
-    for root in roots:
-        val = ReshadeDataset(root, crop=None, augment=None)
-        for i in range(min(count, len(val))):
-            s = val[i]
-            inputs = (s["image"], s["disparity"], s["camera"])
-            ours = reshade(model, *(t.half() if half else t for t in inputs)).float()
-            scores["psnr_input"].append(masked_psnr(s["image"], s["target"], s["mask"]))
-            scores["psnr"].append(masked_psnr(ours, s["target"], s["mask"]))
-            scores["ssim_input"].append(masked_ssim(s["image"], s["target"], s["mask"]))
-            scores["ssim"].append(masked_ssim(ours, s["target"], s["mask"]))
-    return {**{k: float(np.mean(v)) for k, v in scores.items()}, "count": len(scores["psnr"])}
+    for s in samples:
+        inputs = (s["image"], s["disparity"], s["camera"])
+        ours = reshade(model, *(t.half() if half else t for t in inputs)).float()
+        scores["psnr_input"].append(masked_psnr(s["image"], s["target"], s["mask"]))
+        scores["psnr"].append(masked_psnr(ours, s["target"], s["mask"]))
+        scores["ssim_input"].append(masked_ssim(s["image"], s["target"], s["mask"]))
+        scores["ssim"].append(masked_ssim(ours, s["target"], s["mask"]))
+    return {**{k: float(np.mean(v)) for k, v in scores.items()}, "count": len(samples)}
 
 
-def int8_scores(net: ReshadeNet, roots: list[Path], count: int, method: str) -> dict[str, dict]:
+def int8_scores(
+    net: ReshadeNet, samples: list[dict[str, torch.Tensor]], method: str
+) -> dict[str, dict]:
     """Held-out scores of both exported int8 forms: `qdq` (conv inputs and weights
     quantised, as trained) and `weights` (int8 weights, float activations; the form
     shipped for tract)."""
     weights_only = copy.deepcopy(net)
     set_input_quantization(weights_only, False)
     return {
-        f"int8_{method}": held_out_scores(net, roots, count),
-        f"int8_{method}_weights": held_out_scores(weights_only, roots, count),
+        f"int8_{method}": held_out_scores(net, samples),
+        f"int8_{method}_weights": held_out_scores(weights_only, samples),
     }
 
 
@@ -339,15 +347,16 @@ def qat(args: argparse.Namespace) -> dict:
         torch.set_num_threads(args.threads)
     t0 = time.time()
     float_net, base = load_checkpoint_model(args.checkpoint)
-    net = quantize_network(load_checkpoint_model(args.checkpoint)[0])
+    net = quantize_network(copy.deepcopy(float_net))
     calibrate(
         net, training_crops(args.data, args.calib_batches, args.batch_size, args.crop, args.seed)
     )
     validation: dict[str, dict] = {}
-    if args.val_data:
-        validation["fp32"] = held_out_scores(float_net, args.val_data, args.val_examples)
-        validation["fp16"] = held_out_scores(float_net, args.val_data, args.val_examples, True)
-        validation.update(int8_scores(net, args.val_data, args.val_examples, "ptq"))
+    held_out = held_out_samples(args.val_data or [], args.val_examples)
+    if held_out:
+        validation["fp32"] = held_out_scores(float_net, held_out)
+        validation["fp16"] = held_out_scores(float_net, held_out, True)
+        validation.update(int8_scores(net, held_out, "ptq"))
 
     weights = LossWeights.parse(args.loss_weights or base.get("loss_weights") or str(LossWeights()))
     criterion = make_loss(
@@ -387,8 +396,8 @@ def qat(args: argparse.Namespace) -> dict:
     set_mode(net, enabled=True, observing=False, momentum=None)
     set_input_quantization(net, True)
     net.eval()
-    if args.val_data:
-        validation.update(int8_scores(net, args.val_data, args.val_examples, "qat"))
+    if held_out:
+        validation.update(int8_scores(net, held_out, "qat"))
     return {
         "model": net.state_dict(),
         "net_config": net.cfg.to_json(),

@@ -21,7 +21,7 @@ pub struct ReshadeArgs {
     #[arg(long)]
     pub model: Option<PathBuf>,
     /// Model precision to load: int8 (the default for a model directory: a quarter of
-    /// fp32's weight bytes, within 8 % of fp32's speed in tract, which turns the int8
+    /// fp32's weight bytes, at about fp32's speed in tract, which turns the int8
     /// weights into f32 once at load), fp32 or fp16. A --model manifest file is loaded at
     /// its own precision unless this is given. The model must have been exported at that
     /// precision; fp16 weights are computed in f32 on CPUs without fp16 arithmetic.

@@ -3,8 +3,8 @@
 Layout (written by `reshader-train render`): `<root>/<id>/` with `input.exr`, `reshaded.exr`
 (RGB float HDR), `depth.exr` (one channel, z-depth along the optical axis, inf on a miss),
 `mask.png` (8-bit, 255 = valid) and `meta.json` with "novel_offset" [tx, ty, tz] (OpenCV
-frame of the input camera, scene units). Only folders with a meta.json are complete;
-`.tmp-*` folders are renders in progress.
+frame of the input camera, scene units) and "input_camera" (fx, fy, cx, cy in pixels). Only
+folders with a meta.json are complete; `.tmp-*` folders are renders in progress.
 """
 
 from __future__ import annotations
@@ -104,6 +104,20 @@ class Example:
     mask: np.ndarray  # (H, W) bool
     offset: np.ndarray  # (3,) novel camera centre in the input camera frame
     scene: str
+    intrinsics: tuple[float, float, float, float]  # fx, fy, cx, cy (pixel centres at integers)
+
+
+def pixel_rays(
+    intrinsics: tuple[float, float, float, float], y0: int, x0: int, h: int, w: int
+) -> np.ndarray:
+    """(h, w, 3) K^-1 [u, v, 1] of the window whose top-left pixel is (x0, y0)."""
+    fx, fy, cx, cy = intrinsics
+    u = (np.arange(x0, x0 + w, dtype=np.float32) - cx) / fx
+    v = (np.arange(y0, y0 + h, dtype=np.float32) - cy) / fy
+    rays = np.ones((h, w, 3), dtype=np.float32)
+    rays[..., 0] = u[None, :]
+    rays[..., 1] = v[:, None]
+    return rays
 
 
 def load_example(folder: Path) -> Example:
@@ -116,6 +130,13 @@ def load_example(folder: Path) -> Example:
         ) from err
     if offset.shape != (3,) or not np.all(np.isfinite(offset)):
         raise DatasetError(f"{folder / 'meta.json'}: novel_offset must be 3 finite numbers")
+    try:
+        cam = meta["input_camera"]
+        intrinsics = tuple(float(cam[k]) for k in ("fx", "fy", "cx", "cy"))
+    except (KeyError, TypeError, ValueError) as err:
+        raise DatasetError(
+            f"{folder / 'meta.json'}: no input_camera fx, fy, cx, cy ({err})"
+        ) from err
     image = read_exr(folder / "input.exr", 3)
     reshaded = read_exr(folder / "reshaded.exr", 3)
     depth = read_exr(folder / "depth.exr", 1)[..., 0]
@@ -135,6 +156,7 @@ def load_example(folder: Path) -> Example:
         mask=mask,
         offset=offset,
         scene=scene,
+        intrinsics=intrinsics,
     )
 
 
@@ -166,14 +188,17 @@ def _mirror_y_and_transpose(
     OpenCV's (x right, y down), so mirroring rows negates ty and swapping rows with
     columns swaps tx and ty. Non-square planes are never transposed (a batch of them
     would no longer stack)."""
+    *planes, rays = planes
     if rng.random() < 0.5:
-        planes = tuple(a[::-1] for a in planes)
+        planes = [a[::-1] for a in planes]
+        rays = rays[::-1] * np.array([1.0, -1.0, 1.0], dtype=np.float32)
         camera[1] = -camera[1]
     h, w = planes[0].shape[:2]
     if h == w and rng.random() < 0.5:
-        planes = tuple(a.swapaxes(0, 1) for a in planes)
+        planes = [a.swapaxes(0, 1) for a in planes]
+        rays = rays.swapaxes(0, 1)[..., [1, 0, 2]]
         camera[[0, 1]] = camera[[1, 0]]
-    return (*planes, camera)
+    return (*planes, rays, camera)
 
 
 def make_sample(
@@ -200,6 +225,7 @@ def make_sample(
     hdr_gt = ex.reshaded[win].astype(np.float32)
     disp = ex.disparity[win]
     mask = ex.mask[win]
+    rays = pixel_rays(ex.intrinsics, y0, x0, ch, cw)
     camera = ex.offset.copy()
     if aug is not None and rng is not None:
         exposure = _log_uniform(rng, *aug.exposure)
@@ -212,10 +238,11 @@ def make_sample(
         if aug.flip and rng.random() < 0.5:
             # A mirrored scene seen from the mirrored camera: x flips, so does tx.
             hdr_in, hdr_gt, disp, mask = (a[:, ::-1] for a in (hdr_in, hdr_gt, disp, mask))
+            rays = rays[:, ::-1] * np.array([-1.0, 1.0, 1.0], dtype=np.float32)
             camera[0] = -camera[0]
         if aug.dihedral:
-            hdr_in, hdr_gt, disp, mask, camera = _mirror_y_and_transpose(
-                rng, (hdr_in, hdr_gt, disp, mask), camera
+            hdr_in, hdr_gt, disp, mask, rays, camera = _mirror_y_and_transpose(
+                rng, (hdr_in, hdr_gt, disp, mask, rays), camera
             )
         if rng.random() < aug.still:
             hdr_gt, mask, camera = hdr_in, np.ones_like(mask), np.zeros_like(camera)
@@ -232,6 +259,7 @@ def make_sample(
         "disparity": chw(disp),
         "mask": chw(mask.astype(np.float32)),
         "camera": torch.from_numpy(camera.astype(np.float32)),
+        "rays": chw(rays),
     }
 
 

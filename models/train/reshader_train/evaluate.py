@@ -86,10 +86,20 @@ def pad_to_multiple(x: torch.Tensor, multiple: int = ALIGN) -> torch.Tensor:
 
 
 @torch.no_grad()
-def reshade(net: ReshadeNet, image: torch.Tensor, disparity: torch.Tensor, camera: torch.Tensor):
-    """Full-image inference on (3,H,W)/(1,H,W)/(3,) tensors: pad, run, crop, clamp."""
+def reshade(
+    net: ReshadeNet,
+    image: torch.Tensor,
+    disparity: torch.Tensor,
+    camera: torch.Tensor,
+    rays: torch.Tensor | None = None,
+):
+    """Full-image inference on (3,H,W)/(1,H,W)/(3,)/(3,H,W) tensors: pad, run, crop, clamp.
+    `rays` (a sample's) is needed by the lobe head only."""
     h, w = image.shape[-2:]
-    out = net(pad_to_multiple(image[None]), pad_to_multiple(disparity[None]), camera[None])
+    padded_rays = None if rays is None else pad_to_multiple(rays[None])
+    out = net(
+        pad_to_multiple(image[None]), pad_to_multiple(disparity[None]), camera[None], padded_rays
+    )
     return out[0, :, :h, :w].clamp(0.0, 1.0)
 
 
@@ -146,7 +156,7 @@ def evaluate_folder(net: ReshadeNet, root: Path, limit: int | None, lpips_fn=Non
     for folder in list_examples(root)[:limit]:
         ex = load_example(folder)
         s = make_sample(ex, crop=None, rng=None, aug=None)
-        ours = reshade(net, s["image"], s["disparity"], s["camera"])
+        ours = reshade(net, s["image"], s["disparity"], s["camera"], s["rays"])
         row = {"split": root.name, "scene": ex.scene, "example": ex.name}
         row["valid_values"] = int((s["mask"].expand_as(ours) > 0.5).sum())
         for method, img in (("input", s["image"]), ("ours", ours)):

@@ -46,7 +46,7 @@ def save_png(path: Path, chw: torch.Tensor) -> None:
 def write_example(net, folder: Path, out: Path) -> dict:
     s = make_sample(load_example(folder), crop=None, rng=None, aug=None)
     image, target, mask = quantised(s["image"]), quantised(s["target"]), s["mask"]
-    ours = reshade(net, image, s["disparity"], s["camera"])
+    ours = reshade(net, image, s["disparity"], s["camera"], s["rays"])
     out.mkdir(parents=True, exist_ok=True)
     save_png(out / "input.png", image)
     save_png(out / "reshaded.png", target)

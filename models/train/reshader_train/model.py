@@ -32,7 +32,8 @@ NEG_SLOPE = 0.1
 # central differences). The network then has to learn smooth fields of geometry
 # (how far, which way) rather than their product with the image's edges.
 # Channels of the last conv per head: the residual, 3 x 3 Jacobian, and 6 shifts more.
-HEAD_CHANNELS = {"residual": 3, "camera-linear": 9, "flow": 15}
+# "lobes" takes no camera: see LobeField. Its channels are per lobe, times NetConfig.lobes.
+HEAD_CHANNELS = {"residual": 3, "camera-linear": 9, "flow": 15, "lobes": 7}
 HEADS = tuple(HEAD_CHANNELS)
 # Shifts are at most this many pixels per unit of (offset / CAMERA_SCALE).
 FLOW_MAX_PX = 4.0
@@ -51,6 +52,8 @@ class NetConfig:
     head: str = "residual"
     # Residual magnitudes up to this (output units, [0,1]) become exactly 0: see Decoder.
     deadzone: float = 0.0
+    # Spherical-Gaussian lobes per pixel of the "lobes" head.
+    lobes: int = 2
 
     def __post_init__(self) -> None:
         if len(self.widths) != LEVELS or len(self.convs) != LEVELS:
@@ -61,10 +64,17 @@ class NetConfig:
             raise ValueError(f"unknown output head {self.head!r}: expected one of {HEADS}")
         if not 0.0 <= self.deadzone < 0.5:
             raise ValueError(f"dead zone {self.deadzone} must be in [0, 0.5)")
+        if not 1 <= self.lobes <= 8:
+            raise ValueError(f"lobes {self.lobes} must be in 1..8")
 
     @property
     def out_channels(self) -> int:
-        return HEAD_CHANNELS[self.head]
+        per = HEAD_CHANNELS[self.head]
+        return per * self.lobes if self.head == "lobes" else per
+
+    @property
+    def takes_camera(self) -> bool:
+        return self.head != "lobes"
 
     def to_json(self) -> dict:
         return asdict(self)
@@ -79,6 +89,7 @@ class NetConfig:
             camera_hidden=tuple(data["camera_hidden"]),
             head=data.get("head", "residual"),
             deadzone=float(data.get("deadzone", 0.0)),
+            lobes=int(data.get("lobes", 2)),
         )
 
 
@@ -227,16 +238,20 @@ class Decoder(nn.Module):
 
     The dead zone exists because of how the evaluation (and a viewer) weighs views whose
     shading does not change: a faint residual over an unchanged view costs it many dB, and
-    every network trained here without it left one (README, sessions 3-6). With it, "no
-    change" is an interval the network can land in, not a point it has to hit."""
+    every network trained here without it left one (model card, 0.1.0-0.2.0). With it,
+    "no change" is an interval the network can land in, not a point it has to hit.
+
+    With the "lobes" head the decoder takes no camera and `features` is all it does: the
+    view enters through the closed form of `shade_lobes`."""
 
     def __init__(self, cfg: NetConfig) -> None:
         super().__init__()
         w = cfg.widths
         self.head = cfg.head
         self.deadzone = cfg.deadzone
-        self.camera = CameraMLP(cfg.camera_hidden)
-        self.bottleneck = _block(w[-1] + CAMERA_FEATURES, w[-1], cfg.convs[-1])
+        self.camera = CameraMLP(cfg.camera_hidden) if cfg.takes_camera else None
+        camera_features = CAMERA_FEATURES if cfg.takes_camera else 0
+        self.bottleneck = _block(w[-1] + camera_features, w[-1], cfg.convs[-1])
         self.ups = nn.ModuleList(
             _block(w[i + 1] + w[i], w[i], cfg.convs[i]) for i in reversed(range(LEVELS - 1))
         )
@@ -248,6 +263,21 @@ class Decoder(nn.Module):
         nn.init.normal_(self.out.weight, std=1e-3)
         nn.init.zeros_(self.out.bias)
 
+    def features(
+        self, skips: list[torch.Tensor], bottleneck: torch.Tensor, camera: torch.Tensor | None
+    ) -> torch.Tensor:
+        """The last conv's output: the residual, or the head's per-pixel quantities."""
+        x = bottleneck
+        if self.camera is not None:
+            # Broadcast by adding a zero plane rather than with expand(): exports as a plain
+            # Add instead of Expand (which tract's int8 path rejects) plus shape arithmetic.
+            cam = self.camera(camera)[:, :, None, None] + torch.zeros_like(bottleneck[:, :1])
+            x = torch.cat([bottleneck, cam], dim=1)
+        x = self.bottleneck(x)
+        for up, block, skip in zip(self.upsample, self.ups, reversed(skips), strict=True):
+            x = block(torch.cat([up(x), skip], dim=1))
+        return self.out(x)
+
     def forward(
         self,
         image: torch.Tensor,
@@ -255,13 +285,7 @@ class Decoder(nn.Module):
         bottleneck: torch.Tensor,
         camera: torch.Tensor,
     ) -> torch.Tensor:
-        # Broadcast by adding a zero plane rather than with expand(): exports as a plain Add
-        # instead of Expand (which tract's int8 path rejects) plus shape arithmetic.
-        cam = self.camera(camera)[:, :, None, None] + torch.zeros_like(bottleneck[:, :1])
-        x = self.bottleneck(torch.cat([bottleneck, cam], dim=1))
-        for up, block, skip in zip(self.upsample, self.ups, reversed(skips), strict=True):
-            x = block(torch.cat([up(x), skip], dim=1))
-        r = self.out(x)
+        r = self.features(skips, bottleneck, camera)
         if self.head != "residual":
             r = self.contract(image, r, camera / CAMERA_SCALE)
         return image + shrink(torch.tanh(r), self.deadzone)
@@ -281,12 +305,96 @@ class Decoder(nn.Module):
         return sum(change)
 
 
+# The lobe head (DESIGN.md, "The lobe head"). Per pixel and lobe j the network gives an axis
+# mu_j (unit vector, input camera frame, OpenCV axes), a sharpness lambda_j and an RGB
+# amplitude a_j; a view from camera centre c sees G_j = exp(lambda_j (mu_j . w - 1)) with w
+# the unit direction from the pixel's 3-D point to c, and the reshaded image is
+#   R = I + shrink(sum_j a_j [G_j(w_c) - G_j(w_0)], deadzone),
+# so R = I exactly at the input camera and any camera is defined. The sum is taken in the
+# display encoding, as the residual head's is.
+LOBE_LAYOUT = ("mu_x", "mu_y", "mu_z", "sharpness", "amp_r", "amp_g", "amp_b")
+# Sharpness spans one (a hemisphere-wide lobe) to a mirror's: a camera offset of 0.1-0.3 at
+# depth 1-5 turns w by 0.02-0.3 rad, and exp(-lambda theta^2 / 2) must resolve that.
+SHARPNESS_RANGE = (1.0, 2.0e4)
+SHARPNESS_INIT = 100.0
+AMPLITUDE_MAX = 2.0
+# The axis is predicted as an offset from the input camera's own direction w_0, so that a
+# pixel seen at its highlight's peak needs an offset of zero; offsets are at most this long.
+AXIS_OFFSET_MAX = 1.0
+# The disparity input is d = 0.25 / depth, so the point is X = (0.25 / d) r and
+# c - X is parallel to 4 d c - r (positive factor d / 0.25): finite for the sky (d = 0).
+DISPARITY_DEPTH = 0.25
+
+
+def view_directions(disparity: torch.Tensor, rays: torch.Tensor, camera: torch.Tensor):
+    """Unit directions from each pixel's 3-D point towards the camera centre `camera`.
+
+    disparity (B,1,H,W), rays (B,3,H,W) = K^-1 [u, v, 1], camera (B,3)."""
+    v = (disparity / DISPARITY_DEPTH) * camera[:, :, None, None] - rays
+    return v / torch.sqrt((v * v).sum(1, keepdim=True) + 1e-12)
+
+
+class LobeField(nn.Module):
+    """The decoder's raw channels -> lobes (B, 7K, H, W) in LOBE_LAYOUT order per lobe."""
+
+    def __init__(self, lobes: int) -> None:
+        super().__init__()
+        self.lobes = lobes
+        lo, hi = (torch.log(torch.tensor(v)) for v in SHARPNESS_RANGE)
+        self.register_buffer("log_sharpness", torch.stack([lo, hi]), persistent=False)
+        # sigmoid(b) places the sharpness at SHARPNESS_INIT when the raw channel is 0.
+        t = (torch.log(torch.tensor(SHARPNESS_INIT)) - lo) / (hi - lo)
+        self.sharpness_bias = float(torch.log(t / (1 - t)))
+
+    def forward(self, raw: torch.Tensor, rays: torch.Tensor) -> torch.Tensor:
+        w0 = view_directions(torch.zeros_like(rays[:, :1]), rays, rays.new_zeros(rays.shape[0], 3))
+        lo, hi = self.log_sharpness[0], self.log_sharpness[1]
+        parts = []
+        for j in range(self.lobes):
+            p = raw[:, 7 * j : 7 * j + 7]
+            mu = w0 + AXIS_OFFSET_MAX * torch.tanh(p[:, 0:3])
+            mu = mu / torch.sqrt((mu * mu).sum(1, keepdim=True) + 1e-12)
+            sharp = torch.exp(lo + (hi - lo) * torch.sigmoid(p[:, 3:4] + self.sharpness_bias))
+            parts += [mu, sharp, AMPLITUDE_MAX * torch.tanh(p[:, 4:7])]
+        return torch.cat(parts, dim=1)
+
+
+def lobe_change(lobes: torch.Tensor, w: torch.Tensor, w0: torch.Tensor) -> torch.Tensor:
+    """sum_j a_j [G_j(w) - G_j(w0)] for lobes (B,7K,H,W) and unit directions (B,3,H,W)."""
+    change = torch.zeros_like(w)
+    for j in range(lobes.shape[1] // 7):
+        mu, sharp, amp = (
+            lobes[:, 7 * j : 7 * j + 3],
+            lobes[:, 7 * j + 3 : 7 * j + 4],
+            lobes[:, 7 * j + 4 : 7 * j + 7],
+        )
+        g = torch.exp(sharp * ((mu * w).sum(1, keepdim=True) - 1.0))
+        g0 = torch.exp(sharp * ((mu * w0).sum(1, keepdim=True) - 1.0))
+        change = change + amp * (g - g0)
+    return change
+
+
+def shade_lobes(
+    image: torch.Tensor,
+    lobes: torch.Tensor,
+    disparity: torch.Tensor,
+    rays: torch.Tensor,
+    camera: torch.Tensor,
+    deadzone: float = 0.0,
+) -> torch.Tensor:
+    """The reshaded image for camera centres `camera` (B,3): what the runtime evaluates."""
+    w = view_directions(disparity, rays, camera)
+    w0 = view_directions(disparity, rays, torch.zeros_like(camera))
+    return image + shrink(lobe_change(lobes, w, w0), deadzone)
+
+
 class ReshadeNet(nn.Module):
     def __init__(self, cfg: NetConfig) -> None:
         super().__init__()
         self.cfg = cfg
         self.encoder = Encoder(cfg)
         self.decoder = Decoder(cfg)
+        self.lobe_field = LobeField(cfg.lobes) if cfg.head == "lobes" else None
         # He initialisation for LeakyReLU keeps activations from fading over the ~20 layers
         # between the camera features and the output (PyTorch's default init shrinks them,
         # and the camera's influence with them).
@@ -296,10 +404,26 @@ class ReshadeNet(nn.Module):
                 nn.init.zeros_(m.bias)
 
     def forward(
-        self, image: torch.Tensor, disparity: torch.Tensor, camera: torch.Tensor
+        self,
+        image: torch.Tensor,
+        disparity: torch.Tensor,
+        camera: torch.Tensor,
+        rays: torch.Tensor | None = None,
     ) -> torch.Tensor:
+        """The reshaded image. `rays` (B,3,H,W), K^-1 [u, v, 1] per pixel, is needed by the
+        lobe head only (the other heads never see the geometry of the camera)."""
+        if self.lobe_field is None:
+            bottleneck, skips = self.encoder(image, disparity)
+            return self.decoder(image, skips, bottleneck, camera)
+        if rays is None:
+            raise ValueError("the lobe head needs each pixel's ray (rays)")
+        lobes = self.lobes(image, disparity, rays)
+        return shade_lobes(image, lobes, disparity, rays, camera, self.cfg.deadzone)
+
+    def lobes(self, image: torch.Tensor, disparity: torch.Tensor, rays: torch.Tensor):
+        """The lobe head's once-per-photo output (B, 7K, H, W)."""
         bottleneck, skips = self.encoder(image, disparity)
-        return self.decoder(image, skips, bottleneck, camera)
+        return self.lobe_field(self.decoder.features(skips, bottleneck, None), rays)
 
 
 # Flat-signature wrappers for ONNX export as two graphs. Tensor names for the manifest:
@@ -336,6 +460,20 @@ class DecoderGraph(nn.Module):
         return self.decoder(image, list(skips), bottleneck, camera)
 
 
+class LobeGraph(nn.Module):
+    """image [1,3,H,W], disparity [1,1,H,W], rays [1,3,H,W] -> lobes [1,7K,H,W]."""
+
+    input_names = ("image", "disparity", "rays")
+    output_names = ("lobes",)
+
+    def __init__(self, net: ReshadeNet) -> None:
+        super().__init__()
+        self.net = net
+
+    def forward(self, image: torch.Tensor, disparity: torch.Tensor, rays: torch.Tensor):
+        return self.net.lobes(image, disparity, rays)
+
+
 def count_parameters(module: nn.Module) -> int:
     return sum(p.numel() for p in module.parameters())
 
@@ -363,6 +501,7 @@ def conv_flops(net: ReshadeNet, height: int, width: int) -> dict[str, float]:
                 torch.zeros(1, 3, height, width),
                 torch.zeros(1, 1, height, width),
                 torch.zeros(1, 3),
+                torch.zeros(1, 3, height, width),
             )
     finally:
         for h in handles:

@@ -166,7 +166,7 @@ def calibrate(net: ReshadeNet, batches) -> int:
     set_mode(net, enabled=False, observing=True, momentum=None)
     seen = 0
     for b in batches:
-        net(b["image"], b["disparity"], b["camera"])
+        net(b["image"], b["disparity"], b["camera"], b["rays"])
         seen += b["image"].shape[0]
     set_mode(net, enabled=True, observing=False, momentum=None)
     net.train(was_training)
@@ -304,7 +304,7 @@ def held_out_scores(
     model = copy.deepcopy(net).half() if half else net
     scores: dict[str, list[float]] = {"psnr_input": [], "psnr": [], "ssim_input": [], "ssim": []}
     for s in samples:
-        inputs = (s["image"], s["disparity"], s["camera"])
+        inputs = (s["image"], s["disparity"], s["camera"], s["rays"])
         ours = reshade(model, *(t.half() if half else t for t in inputs)).float()
         scores["psnr_input"].append(masked_psnr(s["image"], s["target"], s["mask"]))
         scores["psnr"].append(masked_psnr(ours, s["target"], s["mask"]))
@@ -336,7 +336,7 @@ def qat_target(float_net: ReshadeNet, batch: dict[str, torch.Tensor], target: st
     if target == "truth":
         return batch["target"]
     with torch.no_grad():
-        return float_net(batch["image"], batch["disparity"], batch["camera"])
+        return float_net(batch["image"], batch["disparity"], batch["camera"], batch["rays"])
 
 
 def qat(args: argparse.Namespace) -> dict:
@@ -384,7 +384,7 @@ def qat(args: argparse.Namespace) -> dict:
     for step, b in enumerate(crops):
         observing = step < freeze_at
         set_mode(net, enabled=True, observing=observing, momentum=EMA_MOMENTUM)
-        pred = net(b["image"], b["disparity"], b["camera"])
+        pred = net(b["image"], b["disparity"], b["camera"], b["rays"])
         loss, parts = criterion(pred, qat_target(float_net, b, args.target), b["mask"], b["image"])
         if not torch.isfinite(loss):
             raise FloatingPointError(f"QAT loss is {float(loss)} at step {step}: {parts}")

@@ -50,7 +50,15 @@ def write_example(folder: Path, rng: np.random.Generator, height: int, width: in
     write_exr(folder / "novel.exr", {"R": image[..., 0], "G": image[..., 1], "B": image[..., 2]})
     write_exr(folder / "depth.exr", {"Y": depth})
     Image.fromarray(mask).save(folder / "mask.png")
-    meta = {"novel_offset": offset.tolist(), "scene": "synthetic", "width": width, "height": height}
+    fx = 0.5 * width / np.tan(np.radians(30.0))  # a 60 degree horizontal field of view
+    camera = {"fx": fx, "fy": fx, "cx": (width - 1) / 2, "cy": (height - 1) / 2}
+    meta = {
+        "novel_offset": offset.tolist(),
+        "input_camera": camera,
+        "scene": "synthetic",
+        "width": width,
+        "height": height,
+    }
     (folder / "meta.json").write_text(json.dumps(meta))
 
 

@@ -56,9 +56,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         choices=HEADS,
         default="residual",
         help="output head: residual (the paper's: image + tanh(conv)), camera-linear (the "
-        "last conv predicts the change per unit of camera offset, contracted with the offset) "
-        "or flow (camera-linear plus a predicted shift times the photo's gradient)",
+        "last conv predicts the change per unit of camera offset, contracted with the offset), "
+        "flow (camera-linear plus a predicted shift times the photo's gradient) or lobes (no "
+        "camera input: per pixel --lobes spherical Gaussians whose change between the input "
+        "and the novel direction is added to the photo; one network run serves every view)",
     )
+    p.add_argument("--lobes", type=int, default=2, help="lobes per pixel of the lobes head")
     p.add_argument(
         "--deadzone",
         type=float,
@@ -238,7 +241,7 @@ def validate(net: ReshadeNet, val: ReshadeDataset, count: int, device: torch.dev
     pin, pout = [], []
     for i in range(min(count, len(val))):
         s = {k: v.to(device) for k, v in val[i].items()}
-        ours = reshade(net, s["image"], s["disparity"], s["camera"])
+        ours = reshade(net, s["image"], s["disparity"], s["camera"], s["rays"])
         pin.append(masked_psnr(s["image"], s["target"], s["mask"]))
         pout.append(masked_psnr(ours, s["target"], s["mask"]))
     net.train()
@@ -406,7 +409,7 @@ def train_step(model, criterion: ReshadeLoss, opt, batch: dict, lr: float, d: Di
     for group in opt.param_groups:
         group["lr"] = lr
     b = {k: v.to(d.device, non_blocking=True) for k, v in batch.items()}
-    pred = model(b["image"], b["disparity"], b["camera"])
+    pred = model(b["image"], b["disparity"], b["camera"], b["rays"])
     loss, parts = criterion(pred, b["target"], b["mask"], b["image"])
     if not torch.isfinite(loss):
         raise FloatingPointError(f"loss is {float(loss)} at step {step}: {parts}")
@@ -435,7 +438,7 @@ def train(args: argparse.Namespace) -> ReshadeNet:
     dataset, sampler, loader = make_loader(args, d, shared_example_list(args, d))
     val = ReshadeDataset(args.val_data) if args.val_data and d.main else None
 
-    cfg = replace(net_config(args.size), head=args.head, deadzone=args.deadzone)
+    cfg = replace(net_config(args.size), head=args.head, deadzone=args.deadzone, lobes=args.lobes)
     net = ReshadeNet(cfg).to(d.device)
     opt = torch.optim.Adam(net.parameters(), lr=args.lr)
     step = restore(args.run_dir, net, opt, criterion.ident, d)

@@ -14,6 +14,7 @@ from reshader_train.data import (
     list_examples,
     load_example,
     make_sample,
+    pixel_rays,
 )
 from reshader_train.synthetic import write_dataset, write_exr
 from reshader_train.tonemap import EVAL_EXPOSURE, EVAL_GAMMA, tonemap
@@ -66,6 +67,10 @@ def test_bad_files_are_named(tmp_path, root):
     with pytest.raises(DatasetError, match="meta.json.*novel_offset"):
         load_example(bad)
     (bad / "meta.json").write_text(json.dumps({"novel_offset": [0, 0, 0]}))
+    with pytest.raises(DatasetError, match="meta.json.*input_camera"):
+        load_example(bad)
+    camera = {"fx": 40.0, "fy": 40.0, "cx": 23.5, "cy": 15.5}
+    (bad / "meta.json").write_text(json.dumps({"novel_offset": [0, 0, 0], "input_camera": camera}))
     write_exr(bad / "reshaded.exr", {c: np.zeros((8, 8)) for c in "RGB"})
     with pytest.raises(DatasetError, match="reshaded.exr.*differs"):
         load_example(bad)
@@ -82,6 +87,7 @@ def fake_example(h=16, w=16):
         mask=np.ones((h, w), bool),
         offset=np.array([0.2, -0.1, 0.05], np.float32),
         scene="fake",
+        intrinsics=(20.0, 20.0, (w - 1) / 2, (h - 1) / 2),
     )
 
 
@@ -188,3 +194,25 @@ def test_scene_names_for_grouping():
     assert scene_name({"scene": {"kind": "file", "file": "/x/veach-ajar.xml"}}) == "veach-ajar"
     assert scene_name({"scene": "bathroom"}) == "bathroom"
     assert scene_name({}) == "all"
+
+
+def test_rays_of_a_centred_square_survive_every_symmetry():
+    """A centred square camera is symmetric under the eight symmetries, so every augmented
+    sample's rays must be the untouched image's: K^-1 [u, v, 1] of its own pixel grid."""
+    ex = fake_example()
+    plain = make_sample(ex, None, None, None)["rays"]
+    assert plain.shape == (3, 16, 16)
+    assert torch.allclose(plain[:, 0, 0], torch.tensor([-7.5 / 20, -7.5 / 20, 1.0]))
+    aug = Augment(disparity_scale=(1.0, 1.0), still=0.0, dihedral=True)
+    for seed in range(16):
+        s = make_sample(ex, None, np.random.default_rng(seed), aug)
+        assert torch.allclose(s["rays"], plain), f"seed {seed}"
+
+
+def test_rays_follow_the_crop_window():
+    ex = fake_example()
+    s = make_sample(ex, 8, None, None)
+    y0, x0 = (16 - 8) // 2, (16 - 8) // 2
+    expected = pixel_rays(ex.intrinsics, y0, x0, 8, 8)
+    assert torch.allclose(s["rays"], torch.from_numpy(expected.transpose(2, 0, 1).copy()))
+    assert float(s["rays"][0, 0, 0]) == pytest.approx((x0 - 7.5) / 20)

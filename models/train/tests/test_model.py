@@ -1,18 +1,24 @@
 import math
+from dataclasses import replace
 
 import pytest
 import torch
 
 from reshader_train.model import (
+    AMPLITUDE_MAX,
+    SHARPNESS_RANGE,
     SIZES,
     DecoderGraph,
     EncoderGraph,
+    LobeGraph,
     NetConfig,
     ReshadeNet,
     conv_flops,
     count_parameters,
     encode_disparity,
     net_config,
+    shade_lobes,
+    view_directions,
 )
 
 TINY = net_config("4,8,8,16,16,16")
@@ -193,3 +199,87 @@ def test_size_names_ignore_head_and_dead_zone():
 
     assert size_name(replace(SIZES["lite"], deadzone=0.004, head="flow")) == "lite"
     assert size_name(TINY) == "custom"
+
+
+def lobe_net(lobes=2, seed=0):
+    torch.manual_seed(seed)
+    net = ReshadeNet(replace(TINY, head="lobes", lobes=lobes)).eval()
+    torch.nn.init.normal_(net.decoder.out.weight, std=0.3)
+    return net
+
+
+def centred_rays(h=32, w=64, f=40.0):
+    v, u = torch.meshgrid(
+        torch.arange(h) - (h - 1) / 2, torch.arange(w) - (w - 1) / 2, indexing="ij"
+    )
+    return torch.stack([u / f, v / f, torch.ones(h, w)])[None]
+
+
+def test_lobe_head_is_the_photo_at_the_input_camera_and_takes_no_camera_features():
+    net = lobe_net()
+    assert net.decoder.camera is None
+    image, disp = inputs()
+    rays = centred_rays()
+    assert torch.equal(net(image, disp, torch.zeros(1, 3), rays), image)
+    moved = net(image, disp, torch.tensor([[0.2, 0.0, 0.0]]), rays)
+    assert (moved - image).abs().max() > 1e-3
+    with pytest.raises(ValueError, match="rays"):
+        net(image, disp, torch.zeros(1, 3))
+
+
+def test_lobe_outputs_are_unit_axes_bounded_sharpness_and_amplitude():
+    net = lobe_net(lobes=3)
+    image, disp = inputs()
+    with torch.no_grad():
+        lobes = net.lobes(image, disp, centred_rays())
+    assert lobes.shape == (1, 7 * len(range(3)), 32, 64)
+    for j in range(3):
+        mu, sharp, amp = (
+            lobes[:, 7 * j : 7 * j + 3],
+            lobes[:, 7 * j + 3],
+            lobes[:, 7 * j + 4 : 7 * j + 7],
+        )
+        assert torch.allclose(mu.norm(dim=1), torch.ones(1, 32, 64), atol=1e-5)
+        assert SHARPNESS_RANGE[0] <= float(sharp.min()) <= float(sharp.max()) <= SHARPNESS_RANGE[1]
+        assert float(amp.abs().max()) <= AMPLITUDE_MAX
+
+
+def test_view_directions_point_from_the_surface_to_the_camera():
+    rays = centred_rays(4, 4)
+    depth = torch.linspace(0.5, 6.0, 16).reshape(1, 1, 4, 4)
+    disp = 0.25 / depth
+    cam = torch.tensor([[0.3, -0.2, 0.1]])
+    points = depth * rays
+    expected = cam[:, :, None, None] - points
+    expected = expected / expected.norm(dim=1, keepdim=True)
+    assert torch.allclose(view_directions(disp, rays, cam), expected, atol=1e-6)
+    # The sky (disparity 0) is seen along the ray from any camera.
+    sky = view_directions(torch.zeros(1, 1, 4, 4), rays, cam)
+    assert torch.allclose(sky, -rays / rays.norm(dim=1, keepdim=True), atol=1e-6)
+
+
+def test_shade_lobes_is_the_closed_form():
+    # One pixel straight ahead at depth 1, one lobe around the input camera's direction.
+    image = torch.full((1, 3, 1, 1), 0.5)
+    rays = torch.tensor([0.0, 0.0, 1.0]).reshape(1, 3, 1, 1)
+    disp = torch.full((1, 1, 1, 1), 0.25)
+    lobes = torch.tensor([0.0, 0.0, -1.0, 50.0, 0.4, 0.2, -0.2]).reshape(1, 7, 1, 1)
+    cam = torch.tensor([[0.3, 0.0, 0.0]])
+    cos = 1.0 / math.sqrt(1.0 + 0.3**2)  # the angle between (0.3, 0, -1) and (0, 0, -1)
+    drop = math.exp(50.0 * (cos - 1.0)) - 1.0
+    got = shade_lobes(image, lobes, disp, rays, cam)
+    assert torch.allclose(
+        got[0, :, 0, 0],
+        torch.tensor([0.5 + 0.4 * drop, 0.5 + 0.2 * drop, 0.5 - 0.2 * drop]),
+        atol=1e-6,
+    )
+    assert torch.equal(shade_lobes(image, lobes, disp, rays, cam, deadzone=1.0), image)
+
+
+def test_lobe_graph_is_the_networks_lobes():
+    net = lobe_net()
+    image, disp = inputs()
+    rays = centred_rays()
+    assert LobeGraph.input_names == ("image", "disparity", "rays")
+    assert torch.equal(LobeGraph(net)(image, disp, rays), net.lobes(image, disp, rays))
+    assert NetConfig.from_json(replace(TINY, head="lobes", lobes=3).to_json()).lobes == 3

@@ -197,3 +197,15 @@ def test_dihedral_reaches_the_loader_and_quantize(data, tmp_path, monkeypatch):
     ckpt = torch.load(run / "checkpoint.pt", weights_only=False)
     assert augment_of(ckpt).dihedral
     assert not augment_of({"args": {}}).dihedral
+
+
+def test_lobe_head_trains_validates_and_reaches_the_checkpoint(data, tmp_path):
+    run = tmp_path / "lobes"
+    train(train_args(data, run, 3, head="lobes", lobes=3, loss_weights="1,0,0"))
+    ckpt = torch.load(run / "checkpoint.pt", weights_only=False)
+    assert ckpt["net_config"]["head"] == "lobes"
+    assert ckpt["net_config"]["lobes"] == 3
+    assert ckpt["model"]["decoder.out.weight"].shape[0] == 21
+    assert not any(k.startswith("decoder.camera.") for k in ckpt["model"])
+    (row,) = read_csv(run / "val.csv")
+    assert float(row["psnr_ours"]) > 0

@@ -10,11 +10,15 @@ import numpy as np
 import torch
 
 
-def load_onnx_weights(net: torch.nn.Module, files: list[Path], label: str = "--init-from") -> int:
+def load_onnx_weights(
+    net: torch.nn.Module, files: list[Path], label: str = "--init-from", partial: bool = False
+) -> int:
     """Copy every parameter of `net` from the fp32 ONNX `files`; returns how many.
 
     Refuses files that lack a parameter, hold it in another shape (another --size) or in
-    another type (a quantised or half-precision export)."""
+    another type (a quantised or half-precision export). With `partial`, parameters that
+    are missing or shaped differently (another output head) keep their initial values
+    instead, so that a new head starts from a trained model's features."""
     import onnx
     from onnx import numpy_helper
 
@@ -27,6 +31,14 @@ def load_onnx_weights(net: torch.nn.Module, files: list[Path], label: str = "--i
         for init in graph.initializer:
             found[init.name] = (path, numpy_helper.to_array(init))
     params = dict(net.named_parameters())
+    if partial:
+        params = {
+            name: p
+            for name, p in params.items()
+            if name in found and found[name][1].shape == tuple(p.shape)
+        }
+        if not params:
+            raise ValueError(f"{label} {' '.join(map(str, files))}: no parameter matches")
     missing = [name for name in params if name not in found]
     if missing:
         names = ", ".join(missing[:3]) + (", ..." if len(missing) > 3 else "")

@@ -119,6 +119,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="start from the weights of exported fp32 ONNX files (e.g. a shipped model's "
         "encoder and decoder) instead of random ones; ignored when the run resumes",
     )
+    p.add_argument(
+        "--init-partial",
+        action="store_true",
+        help="with --init-from: copy only the parameters whose name and shape match (e.g. a "
+        "lobes network from a residual model's encoder and decoder); the rest start afresh",
+    )
     p.add_argument("--checkpoint-every", type=int, default=500)
     p.add_argument(
         "--keep-checkpoints",
@@ -443,9 +449,12 @@ def train(args: argparse.Namespace) -> ReshadeNet:
     opt = torch.optim.Adam(net.parameters(), lr=args.lr)
     step = restore(args.run_dir, net, opt, criterion.ident, d)
     if step == 0 and args.init_from:
-        count = load_onnx_weights(net, args.init_from)
+        count = load_onnx_weights(net, args.init_from, partial=args.init_partial)
         if d.main:
-            print(f"initialised {count} parameters from {len(args.init_from)} ONNX file(s)")
+            total = len(list(net.parameters()))
+            print(
+                f"initialised {count} of {total} parameters from {len(args.init_from)} ONNX file(s)"
+            )
     model = net
     if d.world > 1:
         ids = [d.device.index] if d.device.type == "cuda" else None

@@ -2,6 +2,7 @@ import base64
 import copy
 import hashlib
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -299,7 +300,7 @@ def test_committed_fixture_is_consistent():
     base = parity_inputs(h, w)
     assert float(base["image"].double().sum()) == pytest.approx(parity["input"]["image_sum"])
     for manifest in sorted(FIXTURES.glob("*.json")):
-        if manifest.name == "parity.json":
+        if manifest.name.startswith("parity"):
             continue
         m = json.loads(manifest.read_text())
         data = (FIXTURES / m["file"]).read_bytes()
@@ -350,6 +351,21 @@ def test_training_can_start_from_an_exported_fp32_pair(exported, tmp_path):
     junk.write_bytes(b"not a model")
     with pytest.raises(ValueError, match="junk.onnx"):
         load_onnx_weights(ReshadeNet(net_config(TINY)), [junk])
+    # A lobes network takes the residual model's encoder and up-path; its camera-free
+    # bottleneck conv weights and its output conv have other shapes and keep their initial
+    # values (the bottleneck's bias has the same shape and is copied).
+    lobes = ReshadeNet(replace(net_config(TINY), head="lobes"))
+    fresh = {n: p.detach().clone() for n, p in lobes.named_parameters()}
+    with pytest.raises(ValueError, match="no weights for|network wants"):
+        load_onnx_weights(lobes, pair)
+    count = load_onnx_weights(lobes, pair, partial=True)
+    trained_params = dict(trained.named_parameters())
+    for name, got in lobes.named_parameters():
+        if name in ("decoder.bottleneck.0.weight", "decoder.out.weight", "decoder.out.bias"):
+            assert torch.equal(got, fresh[name]), name
+        else:
+            assert torch.equal(got, trained_params[name]), name
+    assert count == len(fresh) - 3
 
 
 def test_quantize_weights_form_fine_tunes_with_float_activations(data, tmp_path, monkeypatch):
@@ -452,3 +468,189 @@ def test_qat_learns_the_float_output_or_the_truth(data):
     assert not distilled.requires_grad
     assert torch.equal(distilled, net(batch["image"], batch["disparity"], batch["camera"]))
     assert not torch.equal(distilled, batch["target"])
+
+
+# --- the lobe head ----------------------------------------------------------------------------
+
+LOBE_TINY = "4,8,8,16,16,16"
+LOBE_KEYS = {"head", "lobes", "lobe_layout", "channels", "deadzone", "domain", "disparity_depth",
+             "shading"}  # fmt: skip
+
+
+def lobe_net(seed=0):
+    from dataclasses import replace
+
+    torch.manual_seed(seed)
+    net = ReshadeNet(replace(net_config(LOBE_TINY), head="lobes", lobes=2, deadzone=0.004))
+    torch.nn.init.normal_(net.decoder.out.weight, std=0.3)  # visible lobes
+    return net.eval()
+
+
+def lobe_feed(seed=4):
+    from reshader_train.export import parity_intrinsics, pixel_rays
+
+    g = torch.Generator().manual_seed(seed)
+    return {
+        "image": torch.rand(1, 3, H, W, generator=g),
+        "disparity": 0.05 + 0.5 * torch.rand(1, 1, H, W, generator=g),
+        "rays": pixel_rays(parity_intrinsics(H, W), H, W),
+    }
+
+
+@pytest.fixture(scope="module")
+def lobe_exported(data, tmp_path_factory):
+    from reshader_train.quantize import set_input_quantization
+
+    out = tmp_path_factory.mktemp("lobes")
+    net = lobe_net()
+    q = quantize_network(copy.deepcopy(net))
+    calibrate(q, training_crops(data, 2, 2, 32, seed=0))
+    set_input_quantization(q, False)
+    info = ExportInfo(size="tiny", validation={})
+    paths = []
+    for precision, model, form in (("fp32", net, "qdq"), ("fp16", net, "qdq"),
+                                   ("int8", q.eval(), "weights")):  # fmt: skip
+        stem = f"reshade-tiny-{precision}" + ("-wo" if form == "weights" else "")
+        # --split does not apply: the lobe head is one graph.
+        paths += export_precision(model, precision, out, stem, info, True, H, W, int8_form=form)
+    return out, paths, {"fp32": net, "fp16": net, "int8": q}
+
+
+def test_lobe_head_exports_one_graph_per_precision_with_its_manifest(lobe_exported):
+    from reshader_train.export import LOBES
+    from reshader_train.model import LOBE_LAYOUT
+
+    out, paths, _ = lobe_exported
+    names = sorted(p.name for p in out.iterdir())
+    assert names == sorted(
+        f"reshade-tiny-{p}-lobes.{ext}"
+        for p in ("fp32", "fp16", "int8-wo")
+        for ext in ("json", "onnx")
+    )
+    for path in paths:
+        m = json.loads(path.read_text())
+        assert set(m) == SCHEMA_KEYS | LOBE_KEYS
+        assert (m["task"], m["head"], m["lobes"], m["domain"]) == (
+            LOBES.task,
+            "lobes",
+            2,
+            "display",
+        )
+        assert m["deadzone"] == 0.004 and m["lobe_layout"] == list(LOBE_LAYOUT)
+        assert m["channels"][:8] == [*(f"{n}0" for n in LOBE_LAYOUT), "mu_x1"]
+        assert m["architecture"]["head"] == "lobes" and m["architecture"]["lobes"] == 2
+        assert m["architecture"]["out_channels"] == 14
+        data = (out / m["file"]).read_bytes()
+        assert m["sha256"] == hashlib.sha256(data).hexdigest()
+        graph = onnx.load_from_string(data).graph
+        assert [i["name"] for i in m["inputs"]] == ["image", "disparity", "rays"]
+        assert [i.name for i in graph.input] == ["image", "disparity", "rays"]
+        assert [o["name"] for o in m["outputs"]] == [o.name for o in graph.output] == ["lobes"]
+        for spec, value in zip(m["inputs"] + m["outputs"], list(graph.input) + list(graph.output),
+                               strict=True):  # fmt: skip
+            dims = value.type.tensor_type.shape.dim
+            assert [d.dim_value or d.dim_param for d in dims] == spec["shape"]
+        parity = m["validation"]["onnxruntime_vs_pytorch"]
+        assert parity["max_abs"] <= parity["tolerance"]
+        assert set(parity["shaded"]) == {"[0.12, -0.05, 0.2]", "[0.5, 0.0, 0.0]"}
+
+
+@pytest.mark.parametrize("precision", ["fp32", "fp16", "int8"])
+def test_lobe_graph_matches_pytorch_and_shades_like_it(lobe_exported, precision):
+    from reshader_train.export import comparable_lobes
+    from reshader_train.model import shade_lobes
+
+    out, _, nets = lobe_exported
+    net = nets[precision]
+    feed = lobe_feed()
+    stem = f"reshade-tiny-{'int8-wo' if precision == 'int8' else precision}-lobes"
+    (got,) = run_onnxruntime((out / f"{stem}.onnx").read_bytes(), feed)
+    with torch.no_grad():
+        ref = net.lobes(feed["image"], feed["disparity"], feed["rays"]).numpy()
+    assert got.shape == (1, 14, H, W)
+    diff = np.abs(comparable_lobes(got) - comparable_lobes(ref))
+    assert diff.max() <= TOLERANCE[precision] and diff.mean() <= MEAN_TOLERANCE[precision]
+
+    def shade(lobes, camera):
+        args = (feed["image"], torch.from_numpy(lobes), feed["disparity"], feed["rays"])
+        return shade_lobes(*args, torch.tensor([camera]), 0.004).clamp(0, 1).numpy()
+
+    for camera in ((0.2, -0.1, 0.15), (0.5, 0.0, 0.0)):
+        theirs, ours = shade(got, camera), shade(ref, camera)
+        assert np.abs(theirs - ours).max() <= {"fp32": 1e-4, "fp16": 2e-2, "int8": 1e-4}[precision]
+        assert np.abs(ours - feed["image"].numpy()).max() > 0.05  # a visible change
+    assert np.array_equal(shade(got, (0.0, 0.0, 0.0)), feed["image"].numpy())
+
+
+def lobe_checkpoint(tmp_path, data):
+    net = lobe_net()
+    path = tmp_path / "lobes.pt"
+    torch.save({"model": net.state_dict(), "net_config": net.cfg.to_json(), "step": 4,
+                "args": {"data": str(data)}}, path)  # fmt: skip
+    return path
+
+
+def test_cli_exports_a_lobe_checkpoint_and_quantize_fine_tunes_it(data, tmp_path, capsys):
+    ckpt = lobe_checkpoint(tmp_path, data)
+    out = tmp_path / "out"
+    argv = ["export", str(ckpt), "--out", str(out), "--precision", "fp32", "fp16", "--split",
+            "--height", "32", "--width", "64"]  # fmt: skip
+    assert cli.main(argv) == 0
+    assert "--split ignored" in capsys.readouterr().err
+    assert sorted(p.name for p in out.glob("*.json")) == [
+        "reshade-custom-fp16-lobes.json",
+        "reshade-custom-fp32-lobes.json",
+    ]
+    # QAT in the weights-only form shipped for tract: the samples carry rays and the network
+    # takes them as its fourth argument.
+    qat = tmp_path / "qat.pt"
+    argv = ["quantize", str(ckpt), "--data", str(data), "--out", str(qat), "--steps", "2",
+            "--batch-size", "2", "--crop", "32", "--calib-batches", "1", "--form", "weights",
+            "--val-data", str(data), "--val-examples", "1", "--threads", "1"]  # fmt: skip
+    assert cli.main(argv) == 0
+    state = torch.load(qat, weights_only=False)
+    assert state["net_config"]["head"] == "lobes"
+    assert state["validation"]["int8_qat_weights"]["count"] == 1
+    argv = ["export", str(qat), "--out", str(out), "--precision", "int8", "--int8-form",
+            "weights", "--height", "32", "--width", "64"]  # fmt: skip
+    assert cli.main(argv) == 0
+    m = json.loads((out / "reshade-custom-int8-wo-lobes.json").read_text())
+    assert m["task"] == "reshade-lobes" and m["precision"] == "int8"
+    assert m["validation"]["quantization"]["form"] == "weights"
+    assert m["validation"]["quantization"]["method"] == "qat"
+    ops = [n.op_type for n in onnx.load(out / m["file"]).graph.node]
+    assert ops.count("QuantizeLinear") == 0
+    assert ops.count("DequantizeLinear") == ops.count("Conv") - 5  # 5 float upsampling blurs
+
+
+@pytest.mark.skipif(not (FIXTURES / "parity-lobes.json").exists(), reason="fixture not generated")
+def test_committed_lobe_fixture_is_consistent():
+    from reshader_train.model import shade_lobes
+
+    parity = json.loads((FIXTURES / "parity-lobes.json").read_text())
+    h, w, k = parity["height"], parity["width"], parity["lobes"]
+    base = parity_inputs(h, w)
+    cam = parity["camera"]
+    assert float(base["image"].double().sum()) == pytest.approx(parity["input"]["image_sum"])
+    assert float(base["rays"][0, 0, 0, 0]) == pytest.approx(-cam["cx"] / cam["fx"])
+    lobes = np.frombuffer(base64.b64decode(parity["lobes_fp32"]), dtype="<f4")
+    lobes = torch.from_numpy(lobes.reshape(1, 7 * k, h, w).copy())
+    for precision, p in parity["precisions"].items():
+        m = json.loads((FIXTURES / p["model"]).read_text())
+        assert (m["task"], m["precision"], m["lobes"]) == ("reshade-lobes", precision, k)
+        data = (FIXTURES / m["file"]).read_bytes()
+        assert hashlib.sha256(data).hexdigest() == m["sha256"]
+        (got,) = run_onnxruntime(data, base)
+        for case in parity["cases"]:
+            c = torch.tensor([case["camera"]])
+            view = shade_lobes(base["image"], torch.from_numpy(got), base["disparity"],
+                               base["rays"], c, parity["deadzone"]).clamp(0, 1).numpy()  # fmt: skip
+            assert np.abs(view - decode(case[p["reference"]], h, w)).max() <= p["tolerance"]
+    for case in parity["cases"]:  # the stored lobes shade to the stored fp32 views
+        c = torch.tensor([case["camera"]])
+        view = shade_lobes(base["image"], lobes, base["disparity"], base["rays"], c,
+                           parity["deadzone"]).clamp(0, 1).numpy()  # fmt: skip
+        assert np.array_equal(view, decode(case["reshaded"], h, w))
+    dep = parity["camera_dependence"]
+    assert dep["[0.0, 0.0, 0.0]"]["max_abs_change"] == 0.0
+    assert dep["[0.5, 0.0, 0.0]"]["max_abs_change"] > 0.1

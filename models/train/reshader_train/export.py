@@ -1,4 +1,4 @@
-"""`reshader-train export`: ONNX models and their manifests (/work/notes/manifest.md schema).
+"""`reshader-train export`: ONNX models and their manifests (models/MANIFEST.md schema).
 
 For one checkpoint and precision this writes `reshade-<size>-<precision>.onnx` (image,
 disparity, camera -> reshaded) and, with --split, the pair `...-encoder.onnx` (image,
@@ -6,6 +6,11 @@ disparity -> bottleneck, skip0..skip4) and `...-decoder.onnx` (image, bottleneck
 camera -> reshaded), each beside a JSON manifest. Every graph is checked with onnx.checker
 and run by onnxruntime against PyTorch before it is written; the measured difference and
 the tolerance go into the manifest's "validation".
+
+A checkpoint of the lobe head (model.LobeField) takes no camera: it is written as one graph
+per precision, `reshade-<size>-<precision>-lobes.onnx` (image, disparity, rays -> lobes),
+which the runtime runs once per photo before evaluating the closed form of
+model.shade_lobes per view; --split does not apply to it.
 
 Precisions:
 - fp32: opset 17, H and W dynamic (the runtime pins them at load), constants folded.
@@ -35,15 +40,19 @@ from torch import nn
 
 from .model import (
     ALIGN,
+    DISPARITY_DEPTH,
     DISPARITY_FREQUENCIES,
+    LOBE_LAYOUT,
     SIZES,
     CameraMLP,
     DecoderGraph,
     EncoderGraph,
+    LobeGraph,
     NetConfig,
     ReshadeNet,
     conv_flops,
     count_parameters,
+    shade_lobes,
 )
 from .quantize import (
     INT8_FORMS,
@@ -124,6 +133,22 @@ def tensor_specs(cfg: NetConfig) -> dict[str, dict]:
             "range": None,
             "description": "input + tanh(residual): crop the padding and clamp to [0,1]",
         },
+        "rays": {
+            "layout": "NCHW",
+            "shape": [1, 3, "H", "W"],
+            "range": None,
+            "description": "K^-1 [u, v, 1] = ((u - cx)/fx, (v - cy)/fy, 1) per pixel (u, v) of "
+            "this input, intrinsics at its resolution, pixel centres at integer coordinates "
+            "(OpenCV: x right, y down, z forward); padding replicates the last row and column",
+        },
+        "lobes": {
+            "layout": "NCHW",
+            "shape": [1, len(LOBE_LAYOUT) * cfg.lobes, "H", "W"],
+            "range": None,
+            "description": f"{cfg.lobes} lobes per pixel, lobe j in channels 7j..7j+6 = "
+            f"{', '.join(LOBE_LAYOUT)}: unit axis in the input camera frame, sharpness > 0, "
+            "signed RGB amplitude (display encoding); see the manifest's shading",
+        },
     }
     last = len(cfg.widths) - 1
     specs["bottleneck"] = {
@@ -158,6 +183,15 @@ ENCODER = GraphKind(
 DECODER = GraphKind(
     "-decoder", "reshade-decoder", DecoderGraph.input_names, DecoderGraph.output_names
 )
+LOBES = GraphKind("-lobes", "reshade-lobes", LobeGraph.input_names, LobeGraph.output_names)
+
+
+def graph_kinds(cfg: NetConfig, split: bool) -> tuple[GraphKind, ...]:
+    """The graphs one precision is written as: the lobe head has one, the others the single
+    graph and, with `split`, the encoder/decoder pair."""
+    if cfg.head == "lobes":
+        return (LOBES,)
+    return (SINGLE, ENCODER, DECODER) if split else (SINGLE,)
 
 
 def graph_module(net: ReshadeNet, kind: GraphKind) -> nn.Module:
@@ -165,6 +199,8 @@ def graph_module(net: ReshadeNet, kind: GraphKind) -> nn.Module:
         return EncoderGraph(net)
     if kind is DECODER:
         return DecoderGraph(net)
+    if kind is LOBES:
+        return LobeGraph(net)
     return net
 
 
@@ -180,17 +216,43 @@ def dynamic_axes(cfg: NetConfig, names: tuple[str, ...]) -> dict[str, dict[int, 
 # --- inputs used for tracing and parity -----------------------------------------------------
 
 
+# The parity input's camera: a 60 degree horizontal field of view, square pixels, the
+# principal point at the image centre (as the runtime assumes for a photo).
+PARITY_HFOV_DEG = 60.0
+
+
+def parity_intrinsics(height: int, width: int) -> dict[str, float]:
+    """fx, fy, cx, cy (pixel centres at integer coordinates) of the parity input."""
+    fx = 0.5 * width / float(np.tan(np.radians(PARITY_HFOV_DEG / 2)))
+    return {"fx": fx, "fy": fx, "cx": (width - 1) / 2, "cy": (height - 1) / 2}
+
+
+def pixel_rays(intrinsics: dict[str, float], height: int, width: int) -> torch.Tensor:
+    """(1, 3, H, W) K^-1 [u, v, 1] for pixel centres at integer coordinates."""
+    u = (torch.arange(width, dtype=torch.float32) - intrinsics["cx"]) / intrinsics["fx"]
+    v = (torch.arange(height, dtype=torch.float32) - intrinsics["cy"]) / intrinsics["fy"]
+    rays = torch.ones(3, height, width)
+    rays[0] = u[None, :]
+    rays[1] = v[:, None]
+    return rays[None]
+
+
 def parity_inputs(height: int, width: int) -> dict[str, torch.Tensor]:
     """A closed-form photo-like input (documented in the README so the runtime can rebuild it):
     image[c,y,x] = 0.1 + 0.1 c + 0.2 x/W + 0.5 exp(-((x - 0.4 W)^2 + (y - 0.45 H)^2) / (2 s^2)),
-    s = 0.15 min(H, W); depth[y,x] = 1.5 + x/W + y/H, disparity = 0.25 / depth."""
+    s = 0.15 min(H, W); depth[y,x] = 1.5 + x/W + y/H, disparity = 0.25 / depth; rays of
+    parity_intrinsics (for the lobe head)."""
     y = torch.arange(height, dtype=torch.float32)[:, None]
     x = torch.arange(width, dtype=torch.float32)[None, :]
     s = 0.15 * min(height, width)
     blob = 0.5 * torch.exp(-((x - 0.4 * width) ** 2 + (y - 0.45 * height) ** 2) / (2 * s * s))
     image = torch.stack([0.1 + 0.1 * c + 0.2 * x / width + blob for c in range(3)])
     depth = 1.5 + x / width + y / height
-    return {"image": image[None], "disparity": (0.25 / depth)[None, None]}
+    return {
+        "image": image[None],
+        "disparity": (0.25 / depth)[None, None],
+        "rays": pixel_rays(parity_intrinsics(height, width), height, width),
+    }
 
 
 def graph_inputs(net: ReshadeNet, kind: GraphKind, feed: dict) -> dict[str, torch.Tensor]:
@@ -237,6 +299,30 @@ class HalfBoundary(nn.Module):
         if isinstance(out, tuple):
             return tuple(o.float() for o in out)
         return out.float()
+
+
+class HalfLobes(nn.Module):
+    """The lobe graph with the convolutions in float16 and the lobe field (axes, sharpness up
+    to 2e4, amplitudes: a few operations per pixel) in float32, fed the float32 rays: the
+    sharpness is an exponential of the network's output and the axes are normalised, which
+    float16 would round visibly after the closed form's exp(sharpness (mu . w - 1))."""
+
+    def __init__(self, net: ReshadeNet) -> None:
+        super().__init__()
+        self.encoder = copy.deepcopy(net.encoder).half()
+        self.decoder = copy.deepcopy(net.decoder).half()
+        self.lobe_field = copy.deepcopy(net.lobe_field).float()
+
+    def forward(self, image: torch.Tensor, disparity: torch.Tensor, rays: torch.Tensor):
+        bottleneck, skips = self.encoder(image.half(), disparity.half())
+        raw = self.decoder.features(skips, bottleneck, None).float()
+        return self.lobe_field(raw, rays)
+
+
+def half_module(net: ReshadeNet, kind: GraphKind) -> nn.Module:
+    if kind is LOBES:
+        return HalfLobes(net)
+    return HalfBoundary(graph_module(net, kind))
 
 
 def dequantized_float_net(qnet: ReshadeNet) -> tuple[ReshadeNet, dict[str, dict]]:
@@ -400,6 +486,11 @@ def to_onnx(module: nn.Module, cfg: NetConfig, kind: GraphKind, feed: dict):
         )
     model = onnx.load_from_string(buf.getvalue())
     remove_identities(model)
+    if kind is LOBES:
+        # The exporter leaves the concatenated channel axis symbolic; the manifest and the
+        # runtime know it is 7K.
+        (out,) = model.graph.output
+        out.type.tensor_type.shape.dim[1].dim_value = len(LOBE_LAYOUT) * cfg.lobes
     return model
 
 
@@ -426,7 +517,10 @@ def check_parity(
             raise ExportError(
                 f"{name}: onnxruntime gives shape {o.shape}, PyTorch {tuple(r.shape)}"
             )
-        diff = np.abs(r.numpy() - o)
+        r = r.numpy()
+        if kind is LOBES:
+            r, o = comparable_lobes(r), comparable_lobes(o)
+        diff = np.abs(r - o)
         worst = max(worst, float(diff.max()))
         mean = max(mean, float(diff.mean()))
     tol, mean_tol = TOLERANCE[precision], MEAN_TOLERANCE[precision]
@@ -435,7 +529,43 @@ def check_parity(
             f"{precision} {kind.task}: onnxruntime differs from PyTorch by {worst:.3g} at most "
             f"and {mean:.3g} on average (tolerances {tol:g}, {mean_tol:g})"
         )
-    return {"max_abs": worst, "mean_abs": mean, "tolerance": tol, "mean_tolerance": mean_tol}
+    out = {"max_abs": worst, "mean_abs": mean, "tolerance": tol, "mean_tolerance": mean_tol}
+    if kind is LOBES:
+        out["compared"] = (
+            "lobes, sharpness as its log (axes, amplitudes absolute; sharpness relative)"
+        )
+        out["shaded"] = shaded_parity(feed, ref[0], torch.from_numpy(got[0]), reference)
+    return out
+
+
+# Cameras at which an exported lobe graph's shading is compared with PyTorch's: one inside
+# the trained offsets and one beyond them (the closed form defines every camera).
+LOBE_PARITY_CAMERAS = ((0.12, -0.05, 0.2), (0.5, 0.0, 0.0))
+
+
+def comparable_lobes(lobes: np.ndarray) -> np.ndarray:
+    """Lobes with each sharpness replaced by its logarithm, so that one absolute tolerance
+    bounds the axes and amplitudes absolutely and the sharpness (1..2e4) relatively."""
+    out = np.array(lobes, dtype=np.float64, copy=True)
+    out[:, 3 :: len(LOBE_LAYOUT)] = np.log(np.maximum(out[:, 3 :: len(LOBE_LAYOUT)], 1e-30))
+    return out
+
+
+def shaded_parity(feed: dict, ref: torch.Tensor, got: torch.Tensor, reference: nn.Module) -> dict:
+    """The largest difference (display units, clamped to [0,1]) between the closed form on
+    PyTorch's lobes and on onnxruntime's, per camera of LOBE_PARITY_CAMERAS."""
+    deadzone = reference.net.cfg.deadzone
+    result = {}
+    for cam in LOBE_PARITY_CAMERAS:
+        c = torch.tensor([cam])
+        a, b = (
+            shade_lobes(feed["image"], lobes, feed["disparity"], feed["rays"], c, deadzone)
+            .clamp(0.0, 1.0)
+            .numpy()
+            for lobes in (ref, got)
+        )
+        result[str(list(cam))] = float(np.abs(a - b).max())
+    return result
 
 
 def sha256_bytes(data: bytes) -> str:
@@ -463,10 +593,10 @@ class ExportInfo:
 def architecture(cfg: NetConfig, size: str, kind: GraphKind) -> dict:
     net = ReshadeNet(cfg).eval()
     flops = conv_flops(net, *FLOPS_SIZE)
-    part = {"": "all", "-encoder": "encoder", "-decoder": "decoder"}[kind.suffix]
+    part = {"": "all", "-encoder": "encoder", "-decoder": "decoder", "-lobes": "all"}[kind.suffix]
     module = {"all": net, "encoder": net.encoder, "decoder": net.decoder}[part]
     gflops = (flops["encoder"] + flops["decoder"] if part == "all" else flops[part]) / 1e9
-    return {
+    arch = {
         "size": size,
         "widths": list(cfg.widths),
         "convs": list(cfg.convs),
@@ -475,6 +605,33 @@ def architecture(cfg: NetConfig, size: str, kind: GraphKind) -> dict:
         "deadzone": cfg.deadzone,
         "parameters": count_parameters(module),
         "gflops_at_384x640": round(gflops, 4),
+    }
+    if cfg.head == "lobes":
+        arch["lobes"] = cfg.lobes
+    return arch
+
+
+# What the runtime evaluates per view from a lobe graph's output (model.shade_lobes).
+LOBE_SHADING = (
+    "per view with camera centre c (input camera frame, the camera block's units) and pixel "
+    "ray r, disparity d: w = normalize(4 d c - r), w0 = normalize(-r); change = sum_j a_j "
+    "(exp(lambda_j (mu_j . w - 1)) - exp(lambda_j (mu_j . w0 - 1))); change' = soft threshold "
+    "by deadzone (0 where |change| <= deadzone, else change -+ deadzone, per channel); "
+    "reshaded = clamp(image + change', 0, 1); c = 0 gives the image exactly"
+)
+
+
+def lobe_fields(cfg: NetConfig) -> dict:
+    """The manifest fields of a lobe graph beyond the common ones (models/MANIFEST.md)."""
+    return {
+        "head": "lobes",
+        "lobes": cfg.lobes,
+        "lobe_layout": list(LOBE_LAYOUT),
+        "channels": [f"{name}{j}" for j in range(cfg.lobes) for name in LOBE_LAYOUT],
+        "deadzone": cfg.deadzone,
+        "domain": "display",
+        "disparity_depth": DISPARITY_DEPTH,
+        "shading": LOBE_SHADING,
     }
 
 
@@ -490,7 +647,7 @@ def manifest(
     specs = tensor_specs(cfg)
     validation = dict(info.validation or {})
     validation["onnxruntime_vs_pytorch"] = parity
-    return {
+    body = {
         "format": FORMAT,
         "name": name,
         "version": info.version,
@@ -510,6 +667,9 @@ def manifest(
         "licence": info.licence,
         "source": info.source,
     }
+    if kind is LOBES:
+        body.update(lobe_fields(cfg))
+    return body
 
 
 def export_precision(
@@ -550,15 +710,19 @@ def export_precision(
         float_net, qparams = dequantized_float_net(net)
     written = []
     out_dir.mkdir(parents=True, exist_ok=True)
-    for kind in (SINGLE, ENCODER, DECODER) if split else (SINGLE,):
+    for kind in graph_kinds(cfg, split):
         name = f"{stem}{kind.suffix}"
         gfeed = graph_inputs(net, kind, feed)
-        module = graph_module(float_net, kind)
         if precision == "fp16":
-            module = HalfBoundary(module)
+            module = half_module(float_net, kind)
+        else:
+            module = graph_module(float_net, kind)
         model = to_onnx(module, cfg, kind, gfeed)
         if precision == "int8":
-            insert_conv_qdq(model, qparams, activations=int8_form == "qdq")
+            # The lobe graph holds the network as `net`, so its weights are named net.<name>.
+            prefix = "net." if kind is LOBES else ""
+            named = {f"{prefix}{k}": v for k, v in qparams.items()}
+            insert_conv_qdq(model, named, activations=int8_form == "qdq")
         try:
             onnx.checker.check_model(model, full_check=True)
         except onnx.checker.ValidationError as err:
@@ -566,6 +730,8 @@ def export_precision(
         data = model.SerializeToString()
         parity = check_parity(data, graph_module(net, kind), kind, gfeed, precision)
         parity["input"] = f"parity_inputs({height}, {width}), camera {list(camera)}"
+        if kind is LOBES:
+            parity["input"] = f"parity_inputs({height}, {width}) with parity_intrinsics"
         body = manifest(name, kind, precision, data, cfg, info, parity)
         atomic_write_bytes(out_dir / f"{name}.onnx", data)
         atomic_write_bytes(out_dir / f"{name}.json", (json.dumps(body, indent=2) + "\n").encode())
@@ -729,6 +895,11 @@ def run(args: argparse.Namespace) -> int:
         size = args.size_name or size_name(net.cfg)
         base_validation = _load_metrics(args.metrics)
         nets = networks_for(args, net, ckpt)
+        if args.split and net.cfg.head == "lobes":
+            print(
+                "export: the lobe head is one graph per precision (-lobes); --split ignored",
+                file=sys.stderr,
+            )
         command = command_line("export", args, ("checkpoint",))
         for precision, (model, suffix) in nets.items():
             validation = dict(base_validation or {})

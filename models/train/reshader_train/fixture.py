@@ -7,6 +7,18 @@ offset: the camera dependence is real, and camera (0,0,0) should give the input 
 exported in fp32, fp16 and int8 (post-training calibrated), single graph and split pair,
 with manifests, plus `parity.json`: PyTorch's outputs on a closed-form input for two cameras
 and the tolerance each precision meets with onnxruntime.
+
+`--head lobes` writes the lobe head's fixture beside it instead (the residual files are left
+alone): the same widths with 2 lobes and a dead zone, its last convolution drawn with
+visible weights (one lobe comes out sharp, sharpness 9-2160, the other broad, 1.6-39), not
+trained by default: on the synthetic data the network learns within 100 steps to make its
+lobes so sharp (1e3-1e4) that 2 % of the parity input's pixels change, and within 50 steps
+with the last convolution free to change none at all (measured; --steps N trains the rest
+with the last convolution frozen). Exported as one graph per precision
+(`reshade-fixture-<precision>-lobes`, int8 in the weights-only form shipped for tract), and
+`parity-lobes.json`: the closed-form input with its camera intrinsics, PyTorch's lobes and
+its reshaded images (model.shade_lobes, clamped) for three cameras, one of them beyond the
+trained offsets, so that the runtime can check its per-view closed form without Python.
 """
 
 from __future__ import annotations
@@ -18,6 +30,7 @@ import json
 import os
 import tempfile
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -27,13 +40,23 @@ from .data import Augment, ReshadeDataset
 from .export import (
     DECODER,
     ENCODER,
+    LOBES,
+    PARITY_HFOV_DEG,
     ExportInfo,
     export_precision,
     parity_inputs,
+    parity_intrinsics,
     run_onnxruntime,
 )
-from .model import ReshadeNet, net_config
-from .quantize import calibrate, quantize_network, training_crops
+from .model import LOBE_LAYOUT, ReshadeNet, net_config, shade_lobes
+from .quantize import (
+    INT8_FORMS,
+    SCHEME,
+    calibrate,
+    quantize_network,
+    set_input_quantization,
+    training_crops,
+)
 from .synthetic import write_dataset
 
 WIDTHS = "4,4,4,4,4,4"
@@ -44,9 +67,32 @@ IDENTITY_PER_BATCH = 2  # of 8
 TOLERANCE_FLOOR = {"fp32": 1e-5, "fp16": 1e-3, "int8": 1e-4}
 
 
+# The lobe head's fixture.
+LOBE_COUNT = 2
+LOBE_DEADZONE = 0.004
+# The input camera (the photo exactly), one inside the trained offsets, one beyond them.
+LOBE_CAMERAS = ((0.0, 0.0, 0.0), (0.2, -0.1, 0.15), (0.5, 0.0, 0.0))
+LOBE_INIT_STD = 0.3  # last conv: visible lobes from the first step
+# Added to the raw sharpness channels: without it the median sharpness is the network's
+# initial 100, at which a 0.2 offset changes 35 % of the parity input's pixels; at -1, 79 %.
+LOBE_SHARPNESS_BIAS = -1.0
+LOBE_PARITY = "parity-lobes.json"
+STEPS = 1000
+LOBE_STEPS = 0
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", type=Path, required=True, help="folder (models/fixtures)")
-    p.add_argument("--steps", type=int, default=1000)
+    p.add_argument(
+        "--head",
+        choices=("residual", "lobes"),
+        default="residual",
+        help="residual: the encoder/decoder fixture and parity.json; lobes: the lobe head's "
+        "graphs (-lobes) and parity-lobes.json",
+    )
+    p.add_argument(
+        "--steps", type=int, help=f"training steps (default {STEPS} residual, {LOBE_STEPS} lobes)"
+    )
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--examples", type=int, default=32, help="synthetic training examples")
     p.add_argument("--height", type=int, default=32, help="parity input height")
@@ -180,8 +226,186 @@ def make_fixture(out: Path, steps: int, seed: int, examples: int, height: int, w
     return record
 
 
+# --- the lobe head ----------------------------------------------------------------------------
+
+
+def train_tiny_lobes(steps: int, seed: int, data: Path) -> tuple[ReshadeNet, float | None]:
+    """The lobe head from a fixed seed, its last convolution drawn with a visible spread and
+    frozen, then `steps` of masked L1 on the shaded output for the rest; returns the network
+    and its last-50-step loss."""
+    torch.manual_seed(seed)
+    cfg = replace(net_config(WIDTHS), head="lobes", lobes=LOBE_COUNT, deadzone=LOBE_DEADZONE)
+    net = ReshadeNet(cfg)
+    torch.nn.init.normal_(net.decoder.out.weight, std=LOBE_INIT_STD)
+    with torch.no_grad():
+        net.decoder.out.bias[3 :: len(LOBE_LAYOUT)] = LOBE_SHARPNESS_BIAS
+    net.decoder.out.requires_grad_(False)
+    opt = torch.optim.Adam([p for p in net.parameters() if p.requires_grad], lr=1e-3)
+    losses = []
+    for b in training_crops(data, steps, 8, 64, seed):
+        pred = net(b["image"], b["disparity"], b["camera"], b["rays"])
+        loss = ((pred - b["target"]).abs() * b["mask"]).mean()
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        opt.step()
+        losses.append(float(loss.detach()))
+    return net.eval(), float(np.mean(losses[-50:])) if losses else None
+
+
+@torch.no_grad()
+def shaded(net: ReshadeNet, lobes: torch.Tensor, base: dict, camera) -> np.ndarray:
+    """What the runtime shows for `camera`: the closed form on `lobes`, clamped to [0,1]."""
+    return (
+        shade_lobes(
+            base["image"],
+            lobes,
+            base["disparity"],
+            base["rays"],
+            torch.tensor([camera], dtype=torch.float32),
+            net.cfg.deadzone,
+        )
+        .clamp(0.0, 1.0)
+        .numpy()
+    )
+
+
+def lobe_parity_record(
+    net: ReshadeNet, qnet: ReshadeNet, out: Path, height: int, width: int
+) -> dict:
+    """PyTorch's lobes and reshaded images (fp32 network; the weights-only fake-quantised one
+    for int8) and how far the closed form on onnxruntime's lobes lands from them."""
+    base = parity_inputs(height, width)
+    args = (base["image"], base["disparity"], base["rays"])
+    with torch.no_grad():
+        lobes, qlobes = net.lobes(*args), qnet.lobes(*args)
+    cases = []
+    refs: dict[str, list[np.ndarray]] = {"fp32": [], "int8": []}
+    for cam in LOBE_CAMERAS:
+        ref, qref = shaded(net, lobes, base, cam), shaded(net, qlobes, base, cam)
+        refs["fp32"].append(ref)
+        refs["int8"].append(qref)
+        cases.append({"camera": list(cam), "reshaded": _b64(ref), "reshaded_int8": _b64(qref)})
+    measured = {}
+    for precision in ("fp32", "fp16", "int8"):
+        stem = lobe_stem(precision)
+        (got,) = run_onnxruntime((out / f"{stem}.onnx").read_bytes(), base)
+        worst = mean = 0.0
+        for cam, ref in zip(
+            LOBE_CAMERAS, refs["int8" if precision == "int8" else "fp32"], strict=True
+        ):
+            view = shaded(net, torch.from_numpy(got), base, cam)
+            worst = max(worst, float(np.abs(view - ref).max()))
+            mean = max(mean, float(np.abs(view - ref).mean()))
+        measured[precision] = {
+            "model": f"{stem}.json",
+            "reference": "reshaded_int8" if precision == "int8" else "reshaded",
+            "onnxruntime_max_abs": worst,
+            "onnxruntime_mean_abs": mean,
+            "tolerance": float(f"{max(2 * worst, TOLERANCE_FLOOR[precision]):.2g}"),
+        }
+    image = base["image"].numpy()
+    intrinsics = parity_intrinsics(height, width)
+    return {
+        "format": "reshader-lobe-parity/1",
+        "model": f"{STEM}-<precision>-lobes",
+        "height": height,
+        "width": width,
+        "lobes": net.cfg.lobes,
+        "deadzone": net.cfg.deadzone,
+        "camera": {
+            "hfov_deg": PARITY_HFOV_DEG,
+            **intrinsics,
+            "pixel_centres": "integer coordinates (OpenCV); cx = (W - 1)/2, cy = (H - 1)/2",
+        },
+        "input": {
+            "generator": "closed form, float32, NCHW (x, y pixel indices; W, H the size)",
+            "image": "image[c,y,x] = 0.1 + 0.1*c + 0.2*x/W + 0.5*exp(-((x - 0.4*W)^2 + "
+            "(y - 0.45*H)^2) / (2*s^2)), s = 0.15*min(H, W)",
+            "disparity": "disparity[y,x] = 0.25 / (1.5 + x/W + y/H)",
+            "rays": "rays[:,y,x] = ((x - cx)/fx, (y - cy)/fy, 1) with the camera above",
+            "image_sum": float(image.astype(np.float64).sum()),
+            "disparity_sum": float(base["disparity"].numpy().astype(np.float64).sum()),
+        },
+        "outputs": "float32 little-endian, base64, NCHW: lobes [1,7K,H,W] of the PyTorch fp32 "
+        "network; per camera reshaded [1,3,H,W] = clamp(shade_lobes(...), 0, 1) on those lobes "
+        "(reshaded) and on the weights-only fake-quantised network's (reshaded_int8)",
+        "lobes_fp32": _b64(lobes.numpy()),
+        "cases": cases,
+        "precisions": measured,
+        "camera_dependence": {
+            str(list(cam)): {
+                "max_abs_change": float(np.abs(ref - image).max()),
+                "mean_abs_change": float(np.abs(ref - image).mean()),
+            }
+            for cam, ref in zip(LOBE_CAMERAS, refs["fp32"], strict=True)
+        },
+        "int8_vs_fp32_max_abs": max(
+            float(np.abs(a - b).max()) for a, b in zip(refs["int8"], refs["fp32"], strict=True)
+        ),
+    }
+
+
+def lobe_stem(precision: str) -> str:
+    """The graph's name without the -lobes suffix export adds (int8: weights-only, -wo)."""
+    return f"{STEM}-{'int8-wo' if precision == 'int8' else precision}{LOBES.suffix}"
+
+
+def make_lobe_fixture(out: Path, steps: int, seed: int, examples: int, height: int, width: int):
+    t0 = time.time()
+    torch.set_num_threads(1)
+    with tempfile.TemporaryDirectory() as tmp:
+        data = write_dataset(Path(tmp) / "synthetic", examples, 64, 64, seed=seed)
+        net, loss = train_tiny_lobes(steps, seed, data)
+        qnet = quantize_network(copy.deepcopy(net))
+        calibrate(qnet, training_crops(data, 8, 8, 64, seed + 1))
+        set_input_quantization(qnet, False)  # the weights-only form the runtime ships
+        qnet.eval()
+        n_examples = len(ReshadeDataset(data))
+    wall = round(time.time() - t0, 1)
+    command = (
+        f"reshader-train fixture --head lobes --out {out} --steps {steps} --seed {seed} "
+        f"--examples {examples} --height {height} --width {width}"
+    )
+    info = ExportInfo(
+        size="fixture",
+        training={
+            "command": command,
+            "data": f"synthetic.write_dataset({examples} examples, 64x64, seed {seed}); "
+            f"crops 64, {Augment()}; last conv drawn with std {LOBE_INIT_STD}, sharpness "
+            f"bias {LOBE_SHARPNESS_BIAS}, frozen",
+            "feature_network": "none (masked L1 only: a test fixture)"
+            if steps
+            else "none (not trained: a test fixture)",
+            "steps": steps,
+            "wall_time_s": wall,
+        },
+        validation={"train_l1_last50": loss, "train_examples": n_examples},
+        source=f"{command} (torch {torch.__version__})",
+    )
+    for precision, model in (("fp32", net), ("fp16", net), ("int8", qnet)):
+        stem = lobe_stem(precision).removesuffix(LOBES.suffix)
+        form = "weights" if precision == "int8" else "qdq"
+        if precision == "int8":
+            quantization = {**SCHEME, "regions": INT8_FORMS[form], "form": form, "method": "ptq"}
+            info = replace(info, validation={**info.validation, "quantization": quantization})
+        export_precision(model, precision, out, stem, info, False, height, width, int8_form=form)
+    record = lobe_parity_record(net, qnet, out, height, width)
+    tmp = out / f".{LOBE_PARITY}.tmp"
+    tmp.write_text(json.dumps(record, indent=1) + "\n")
+    os.replace(tmp, out / LOBE_PARITY)
+    return record
+
+
 def run(args: argparse.Namespace) -> int:
-    record = make_fixture(args.out, args.steps, args.seed, args.examples, args.height, args.width)
+    if args.head == "lobes":
+        steps = LOBE_STEPS if args.steps is None else args.steps
+        record = make_lobe_fixture(
+            args.out, steps, args.seed, args.examples, args.height, args.width
+        )
+        print(json.dumps({k: record[k] for k in ("precisions", "camera_dependence")}, indent=1))
+        return 0
+    steps = STEPS if args.steps is None else args.steps
+    record = make_fixture(args.out, steps, args.seed, args.examples, args.height, args.width)
     total = sum(p.stat().st_size for p in args.out.iterdir() if p.is_file())
     print(json.dumps({k: record[k] for k in ("precisions", "camera_dependence")}, indent=1))
     print(f"{args.out}: {total / 1024:.0f} KB in {len(list(args.out.iterdir()))} files")

@@ -2,7 +2,7 @@
 
 The last steps of a run at a constant learning rate wander around a minimum; the mean of
 their weights sits nearer its centre and scores better on held-out views than any of them
-(session 8: four checkpoints 1,000 steps apart, +0.45 dB against +0.31 to +0.39 dB each).
+(reshade-lite 0.3.0: four checkpoints 1,000 steps apart, +0.45 dB against +0.31 to +0.39 dB each).
 The checkpoints must come from the same network (size, head, dead zone). The result
 keeps the provenance of the last one, the training command of every run they come from
 with this command appended, and no optimiser state:

@@ -34,7 +34,7 @@ WEIGHT_QMIN, WEIGHT_QMAX = -128, 127
 WEIGHT_LEVELS = 127
 # Export forms: "qdq" quantises conv inputs and weights (integer convolutions where the engine
 # has them); "weights" stores int8 weights only (activations float, a quarter of the file:
-# the form shipped for tract, whose integer path is slower still on x86; README, session 7).
+# the form shipped for tract, whose integer path is slower still on x86: docs/benchmarks.md).
 INT8_FORMS = {
     "qdq": "convolutions only: QDQ on conv inputs (uint8 per tensor) and weights (int8)",
     "weights": "convolution weights only (int8 per channel); activations float",

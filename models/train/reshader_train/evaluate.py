@@ -170,6 +170,19 @@ def evaluate_folder(net: ReshadeNet, root: Path, limit: int | None, lpips_fn=Non
     return rows
 
 
+# Views whose input is below this PSNR against the truth are "changing" (the shading moves
+# visibly); the rest are "static": the gain on the first and the loss on the second are
+# the two numbers a reshading model is judged by.
+CHANGING_BELOW_DB = 40.0
+
+
+def split_by_change(rows: list[dict]) -> dict[str, list[dict]]:
+    return {
+        "changing": [r for r in rows if r["psnr_input"] < CHANGING_BELOW_DB],
+        "static": [r for r in rows if r["psnr_input"] >= CHANGING_BELOW_DB],
+    }
+
+
 def summarise(rows: list[dict]) -> dict[str, dict]:
     """Per split (and per scene when a split has several; all splits together when there
     are several) mean metrics and PSNR gain."""
@@ -189,6 +202,10 @@ def summarise(rows: list[dict]) -> dict[str, dict]:
         out[name]["gain_db"] = float(np.mean(gains))
         out[name]["gain_median_db"] = float(np.median(gains))
         out[name]["improved"] = int(sum(g > 0 for g in gains))
+        for part, rows_of_part in split_by_change(rs).items():
+            part_gains = [r["psnr_ours"] - r["psnr_input"] for r in rows_of_part]
+            out[name][f"gain_{part}_db"] = float(np.mean(part_gains)) if part_gains else None
+            out[name][f"count_{part}"] = len(part_gains)
         weights = [r["valid_values"] for r in rs]
         for method in ("input", "ours"):
             pooled = np.average([r[f"mse_{method}"] for r in rs], weights=weights)
@@ -216,6 +233,16 @@ def format_table(
             f"{'':<28} gain    {m['gain_db']:+7.2f} dB (median {m['gain_median_db']:+.2f}, "
             f"{m['improved']}/{m['count']} improved; pooled PSNR "
             f"{m['pooled_psnr_input']:.2f} -> {m['pooled_psnr_ours']:.2f})"
+        )
+        parts = [
+            f"{part} {m[f'gain_{part}_db']:+.2f} dB (n={m[f'count_{part}']})"
+            for part in ("changing", "static")
+            if m[f"count_{part}"]
+        ]
+        lines.append(
+            f"{'':<28} by view: "
+            + ", ".join(parts)
+            + f" (input below / at or above {CHANGING_BELOW_DB:.0f} dB)"
         )
     if lpips_note:
         lines.append(lpips_note)

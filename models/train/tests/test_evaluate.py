@@ -78,6 +78,11 @@ def test_summary_gain_and_scenes():
     assert both["all"]["count"] == 3 and both["all"]["improved"] == 2
     assert both["all"]["gain_db"] == pytest.approx((2.0 + 1.0 - 1.0) / 3)
     assert list(both)[0] == "all" and both["test"]["count"] == 1
+    static = {**rows[0], "split": "test", "psnr_input": 50.0, "psnr_ours": 49.5}
+    parts = summarise([*rows, static])["all"]
+    assert parts["gain_changing_db"] == pytest.approx(1.5) and parts["count_changing"] == 2
+    assert parts["gain_static_db"] == pytest.approx(-0.5) and parts["count_static"] == 1
+    assert summarise(rows)["val"]["gain_static_db"] is None
 
 
 def test_evaluate_command(tmp_path, capsys):

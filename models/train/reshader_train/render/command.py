@@ -36,8 +36,12 @@ def add_arguments(parser) -> None:
         help="'procedural' (default: rooms and tabletops of every material), "
         "'procedural:highlights' (curved glossy objects on tabletops under a sun and orbs, "
         "seen from close by), 'procedural:studio' (the same under a dim uniform "
-        "environment, lit by the sun and orbs) or a Mitsuba 3 "
-        "scene file (.xml)",
+        "environment, lit by the sun and orbs), 'procedural:products' (product shots on "
+        "sweeps and counters under studio softboxes, strip lights, windows and skies; wood, "
+        "car paint, stone, metals, ceramics, plastics, some glass), 'procedural:rooms' "
+        "(rooms with varnished floors, counters, tables and cars, lit by windows and "
+        "ceiling panels), 'procedural:diffuse' (both with every material Lambertian: "
+        "nothing changes between views) or a Mitsuba 3 scene file (.xml)",
     )
     parser.add_argument("--count", type=int, required=True, help="examples in the dataset")
     parser.add_argument("--seed", type=int, default=0, help="dataset seed (default 0)")

@@ -80,16 +80,56 @@ def view_hits(scene, camera: Camera, grid: int = 8) -> np.ndarray:
     return trace_distances(scene, camera.centre, directions)
 
 
+def _outside_objects(params: dict, pos: np.ndarray) -> bool:
+    """The camera stands outside every object's bounding cylinder (with a margin): a
+    closed shape seen from inside (a car body, a counter) can pass `camera_is_free`."""
+    from .procedural import _height, _radius
+
+    for o in params["objects"]:
+        x, y, z = o["position"]
+        near = math.hypot(pos[0] - x, pos[2] - z) < _radius(o) + 0.1
+        if near and pos[1] < y + _height(o) + 0.1:
+            return False
+    return True
+
+
+def _sees_target(scene, pos: np.ndarray, target: np.ndarray, obj: dict) -> bool:
+    """Nothing (a light, a counter's edge, another object) stands between the camera and
+    the object it looks at."""
+    from .integrator import trace_distances
+    from .procedural import _radius
+
+    to_target = target - pos
+    dist = float(np.linalg.norm(to_target))
+    t = float(trace_distances(scene, pos, (to_target / dist)[None])[0])
+    return t >= dist - _radius(obj) - 0.05
+
+
 def choose_procedural_camera(rng, scene, params: dict, width: int, height: int) -> dict:
     """Look at a random object from 1-4.5 units (0.8-2.5 for the "highlights" and "studio"
-    families, so that highlights cover more pixels); the camera stands in free space."""
+    families, so that highlights cover more pixels; the photographic families give their
+    own `camera_distance`); the camera stands in free space."""
+    from .procedural import PHOTO_FAMILIES, SUPPORTS, _height, _radius
+
     x0, x1, z0, z1, y0, y1 = params["bounds"]
     margin = CLEARANCE + 0.1
     near, far = (0.8, 2.5) if params.get("family") in GLOSSY_FAMILIES else (1.0, 4.5)
+    photo = params.get("family") in PHOTO_FAMILIES
+    targets = params["objects"]
+    if photo:
+        near, far = params["camera_distance"]
+        # Look at what stands on tables and counters, not at their middles.
+        targets = [o for o in targets if o["shape"] not in SUPPORTS] or targets
     for _ in range(200):
-        obj = params["objects"][int(rng.integers(len(params["objects"])))]
-        target = np.array(obj["position"]) + [0.0, 0.3, 0.0] + rng.normal(0, 0.1, 3)
-        dist, az = rng.uniform(near, far), rng.uniform(0, 2 * math.pi)
+        obj = targets[int(rng.integers(len(targets)))]
+        lift, closest = 0.3, near
+        if photo:  # a big object is seen whole, not as a wall of one material
+            lift, closest = (
+                min(0.3, 0.5 * _height(obj)),
+                max(near, min(0.7 * far, 2.5 * _radius(obj))),
+            )
+        target = np.array(obj["position"]) + [0.0, lift, 0.0] + rng.normal(0, 0.1, 3)
+        dist, az = rng.uniform(closest, far), rng.uniform(0, 2 * math.pi)
         el = math.radians(rng.uniform(-5, 40))
         pos = target + dist * np.array(
             [math.cos(el) * math.sin(az), math.sin(el), math.cos(el) * math.cos(az)]
@@ -97,6 +137,8 @@ def choose_procedural_camera(rng, scene, params: dict, width: int, height: int) 
         if not (x0 + margin < pos[0] < x1 - margin and z0 + margin < pos[2] < z1 - margin):
             continue
         if not (0.3 < pos[1] < y1 - margin) or not camera_is_free(scene, pos):
+            continue
+        if photo and not (_outside_objects(params, pos) and _sees_target(scene, pos, target, obj)):
             continue
         cam = {
             "position": pos.tolist(),

@@ -53,7 +53,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--family",
         default="mixed",
-        help="procedural scene family: mixed (default), highlights or studio (see render --scenes)",
+        help="procedural scene family: mixed (default), highlights, studio, products, rooms "
+        "or diffuse (see render --scenes)",
     )
     p.add_argument("--threads", type=int, default=None, help="Dr.Jit threads (default all)")
     p.add_argument("--json", type=Path, help="write the summary and per-example rows as JSON")

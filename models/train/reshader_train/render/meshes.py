@@ -113,3 +113,65 @@ def mitsuba_mesh(mi, name: str, verts, faces, uv, bsdf: dict):
     params["faces"] = dr.ravel(mi.Vector3u(np.ascontiguousarray(faces.T, np.uint32)))
     params.update()
     return mesh
+
+
+def _signed_power(x, e: float):
+    return np.sign(x) * np.abs(x) ** e
+
+
+def superellipsoid(half_extents, e_vertical: float, e_horizontal: float, nu=48, nv=32):
+    """A rounded box (exponents ~0.2-0.5) or pebble (~1) of `half_extents` (x, y, z),
+    centred on the origin, faces wound so that the geometric normals point outwards."""
+    a, b, c = (float(v) for v in half_extents)
+
+    def fn(u, v):
+        eta = math.pi * (v - 0.5)  # latitude, bottom to top
+        omega = 2 * math.pi * u
+        ce, se = _signed_power(np.cos(eta), e_vertical), _signed_power(np.sin(eta), e_vertical)
+        co, so = (
+            _signed_power(np.cos(omega), e_horizontal),
+            _signed_power(np.sin(omega), e_horizontal),
+        )
+        return np.stack([a * ce * co, b * se, c * ce * so], axis=-1)
+
+    verts, faces, uv = _surface(fn, nu, nv)
+    return verts, orient_outwards(verts, faces), uv
+
+
+def orient_outwards(verts: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """`faces` with their winding flipped if most face normals point towards the centroid
+    (for closed, roughly convex meshes)."""
+    tri = verts[faces]
+    normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    outward = np.sum(normal * (tri.mean(axis=1) - verts.mean(axis=0)), axis=1)
+    return faces if outward.sum() >= 0 else faces[:, ::-1].copy()
+
+
+def sweep(width: float, floor_depth: float, radius: float, height: float, nu=8, nv=48):
+    """A photo studio's seamless backdrop: a floor from z = floor_depth to z = 0, a
+    quarter-circle cove of `radius` up to a back wall at z = -radius, up to `height`;
+    `width` across x (centred). Faces wound so that the normals face the subject."""
+    arc = math.pi / 2 * radius
+    wall = height - radius
+    total = floor_depth + arc + wall
+
+    def fn(u, v):
+        s = v * total
+        x = (u - 0.5) * width
+        on_floor, on_arc = s < floor_depth, s < floor_depth + arc
+        angle = np.clip((s - floor_depth) / radius, 0, math.pi / 2)
+        y = np.where(
+            on_floor,
+            0.0,
+            np.where(on_arc, radius * (1 - np.cos(angle)), radius + s - floor_depth - arc),
+        )
+        z = np.where(on_floor, floor_depth - s, np.where(on_arc, -radius * np.sin(angle), -radius))
+        return np.stack([x, y, z], axis=-1)
+
+    # Rows of vertices at the floor's end and the cove's ends, so the profile keeps its shape.
+    verts, faces, uv = _surface(fn, nu, nv)
+    tri = verts[faces]
+    normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    if normal[:, 1].sum() < 0:  # the floor part must face up
+        faces = faces[:, ::-1].copy()
+    return verts, faces, uv

@@ -2,7 +2,8 @@
 
 `sample_scene` draws every random choice into a JSON-able dict (stored in meta.json);
 `build_scene` turns that dict into a Mitsuba scene. Rooms are 3.5-8 units across and
-2.5-3.5 high; the camera stands 1-4.5 units from the object it looks at.
+2.5-3.5 high; the camera stands 1-4.5 units from the object it looks at. The
+photographic families (products, rooms, diffuse) live in `photo`.
 """
 
 import copy
@@ -12,7 +13,7 @@ import numpy as np
 
 from . import meshes
 from .materials import OPAQUE, material_dict, random_colour, sample_material
-from .textures import make_sky
+from .textures import make_environment
 
 SHAPES = ("sphere", "cube", "cylinder", "torus", "blob", "vase")
 # Scene families. "mixed" is everything the generator makes. "highlights" narrows it to
@@ -23,7 +24,13 @@ SHAPES = ("sphere", "cube", "cylinder", "torus", "blob", "vase")
 # "studio" is "highlights" under a dim uniform environment: the sun and the orbs light the
 # scene, so that what changes between cameras is mostly their highlights, which a network
 # can predict from the photo, rather than reflections of a sky it cannot see.
-FAMILIES = ("mixed", "highlights", "studio")
+# "products", "rooms" and "diffuse" are the photographic families of `photo`: product
+# shots and rooms of the materials people photograph under studio and interior lighting,
+# and the same scenes with every material Lambertian.
+FAMILIES = ("mixed", "highlights", "studio", "products", "rooms", "diffuse")
+PHOTO_FAMILIES = ("products", "rooms", "diffuse")
+# Objects that others stand on.
+SUPPORTS = ("table", "counter")
 GLOSSY_FAMILIES = ("highlights", "studio")
 GLOSSY = ("plastic", "roughplastic", "principled", "roughconductor")
 CURVED = ("sphere", "cylinder", "torus", "blob", "vase")
@@ -32,7 +39,7 @@ ROOM_SURFACES = ("diffuse", "roughplastic", "principled")
 
 
 def check_family(family: str) -> None:
-    if family not in FAMILIES:
+    if not isinstance(family, str) or family not in FAMILIES:
         raise ValueError(
             f"unknown procedural family {family!r}: expected one of " + ", ".join(FAMILIES)
         )
@@ -85,8 +92,10 @@ def _sample_object(rng: np.random.Generator, support: float, family: str) -> dic
 
 def _radius(obj: dict) -> float:
     """Footprint radius used to keep objects, orbs and cameras apart."""
-    if obj["shape"] in ("cube", "table"):
+    if obj["shape"] in ("cube", "table", "rounded", "counter"):
         return math.hypot(obj["extent"][0], obj["extent"][2])
+    if obj["shape"] == "car":
+        return math.hypot(obj["length"] / 2, obj["width"] / 2)
     if obj["shape"] == "torus":
         return obj["size"] + obj["minor"]
     if obj["shape"] == "vase":
@@ -96,10 +105,13 @@ def _radius(obj: dict) -> float:
 
 def _height(obj: dict) -> float:
     shape = obj["shape"]
-    if shape == "table":
+    if shape in SUPPORTS:
         return obj["height"] + obj["extent"][1]
-    if shape == "cube":
+    if shape in ("cube", "rounded"):
         return 2 * obj["extent"][1]
+    if shape == "car":
+        cabin = obj["cabin"]
+        return obj["clearance"] + 0.8 * obj["body_height"] + cabin["height"]
     if shape in ("cylinder", "vase"):
         return obj["height"]
     if shape == "torus":
@@ -116,7 +128,7 @@ def _place(rng, objects: list, obj: dict, centre, spread: float, bounds) -> bool
         if not (bounds[0] + r < x < bounds[1] - r and bounds[2] + r < z < bounds[3] - r):
             continue
         # Objects standing on the table may overlap the table's footprint, nothing else.
-        others = [o for o in objects if not (obj["support"] > 0 and o["shape"] == "table")]
+        others = [o for o in objects if not (obj["support"] > 0 and o["shape"] in SUPPORTS)]
         if all(
             math.hypot(x - o["position"][0], z - o["position"][2]) > r + _radius(o) + 0.05
             for o in others
@@ -130,6 +142,10 @@ def _place(rng, objects: list, obj: dict, centre, spread: float, bounds) -> bool
 def sample_scene(rng: np.random.Generator, family: str = "mixed") -> dict:
     """Every random choice of one procedural scene of `family` (cameras are chosen later)."""
     check_family(family)
+    if family in PHOTO_FAMILIES:
+        from . import photo
+
+        return photo.sample_scene(rng, family)
     highlights = family in GLOSSY_FAMILIES
     kind = "room" if rng.uniform() < (0.0 if highlights else 0.7) else "tabletop"
     depths = (3, 5) if highlights else (4, 8)
@@ -236,6 +252,10 @@ def _room_materials(rng: np.random.Generator) -> dict:
 def restyle(rng: np.random.Generator, layout: dict) -> dict:
     """`layout` with new materials and orbs, as the paper re-draws the materials of its fixed
     scenes for every pair: geometry, sky and area lights stay."""
+    if layout.get("family") in PHOTO_FAMILIES:
+        from . import photo
+
+        return photo.restyle(rng, layout)
     scene = copy.deepcopy(layout)
     highlights = scene.get("family") in GLOSSY_FAMILIES
     for obj in scene["objects"]:
@@ -414,9 +434,15 @@ def build_scene(mi, scene: dict):
     """The Mitsuba scene for parameters from `sample_scene`."""
     d: dict = {
         "type": "scene",
-        "sky": {"type": "envmap", "bitmap": mi.Bitmap(make_sky(scene["sky"]))},
+        "sky": {"type": "envmap", "bitmap": mi.Bitmap(make_environment(scene["sky"]))},
     }
-    if scene["kind"] == "room":
+    object_shapes = _object_shapes
+    if "stage" in scene:
+        from . import photo
+
+        d.update(photo.stage_shapes(mi, scene))
+        object_shapes = photo.object_shapes
+    elif scene["kind"] == "room":
         d.update(_room_shapes(mi, scene["room"]))
     else:
         d["ground"] = {
@@ -425,7 +451,7 @@ def build_scene(mi, scene: dict):
             "to_world": mi.ScalarTransform4f().rotate([1, 0, 0], -90).scale(20),
         }
     for i, obj in enumerate(scene["objects"]):
-        d.update(_object_shapes(mi, obj, f"object{i}"))
+        d.update(object_shapes(mi, obj, f"object{i}"))
     d.update(light_shapes(mi, scene))
     # The scene loader orders the shapes it instantiates, and with them the emitters,
     # differently from one load to the next, and the emitter order decides which light

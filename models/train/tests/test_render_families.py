@@ -120,6 +120,9 @@ def test_products_draw_the_materials_of_photographed_things():
     ]
     assert set(recipes) == {r for r, _ in photo.ROLES["product"]}
     assert recipes.count("glass") < 0.1 * len(recipes)  # sparingly: expensive and noisy
+    glass = [o["shape"] for i in range(60) for o in draw("products", i)["objects"]
+             if o["material"]["recipe"] == "glass"]  # fmt: skip
+    assert set(glass) <= set(photo.CLOSED) and "blob" not in photo.CLOSED
     metals = [
         o["material"]
         for i in range(60)

@@ -74,8 +74,10 @@ ROLES = {
     "rim": (("polished_metal", 0.6), ("brushed_metal", 0.4)),
 }
 assert all(r in RECIPES for choices in ROLES.values() for r, _ in choices)
-# Glass only on closed shapes (it is also the most expensive material to render).
-CLOSED = ("sphere", "rounded", "blob", "torus", "cube")
+# Glass only on closed shapes whose normals point outwards (meshes.blob's point inwards,
+# which would swap a dielectric's inside and outside); it is also the most expensive
+# material to render.
+CLOSED = ("sphere", "rounded", "torus", "cube")
 # (shape, weight) of products; bottles and bowls are vases with their own profiles.
 PRODUCT_SHAPES = (
     ("rounded", 0.22),

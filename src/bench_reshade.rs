@@ -1,8 +1,10 @@
 //! The reshading benchmark: per-view cost of each precision and engine, the encoder's
 //! cost, achieved GFLOP/s, and the per-view cost options (a) reduced working resolution,
 //! (b) key views, (c) batching, plus parallel views, each with its fidelity (PSNR)
-//! against plain per-view full-resolution reshading. Run by `cargo bench --bench reshade`
-//! (arguments after `--`) and printed as Markdown tables.
+//! against plain per-view full-resolution reshading. Where the model directory (or
+//! `--lobes-model`) has a lobe-head model, its rows ("<precision> lobes") give the network's
+//! once-per-photo cost and the closed form's cost per view. Run by
+//! `cargo bench --bench reshade` (arguments after `--`) and printed as Markdown tables.
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -13,8 +15,12 @@ use crate::depth::DepthMap;
 use crate::engine::{self, Engine};
 use crate::manifest::Precision;
 use crate::photo::SrgbImage;
+use crate::reshade_net::lobes::LobeReshader;
 use crate::reshade_net::{NetOptions, NetReshader};
-use crate::views::ViewRig;
+use crate::views::{Intrinsics, ViewRig};
+
+/// Horizontal field of view of the test scene's camera (the lobe head needs its rays).
+pub const TEST_SCENE_HFOV_DEG: f64 = 60.0;
 
 #[derive(Clone, Debug)]
 pub struct BenchConfig {
@@ -28,6 +34,8 @@ pub struct BenchConfig {
     pub precisions: Vec<Precision>,
     /// Views timed per precision/engine row (the options table uses `views`).
     pub timed_views: usize,
+    /// The lobe-head model timed in the "lobes" rows (None: `model`, when it holds one).
+    pub lobes_model: Option<PathBuf>,
 }
 
 impl Default for BenchConfig {
@@ -42,13 +50,14 @@ impl Default for BenchConfig {
             engines: engine::ENGINES.iter().map(|s| s.to_string()).collect(),
             precisions: vec![Precision::Fp32, Precision::Fp16, Precision::Int8],
             timed_views: 8,
+            lobes_model: None,
         }
     }
 }
 
 impl BenchConfig {
     /// Parses `--model P --size WxH --views N --cone DEG --threads N --engines a,b
-    /// --precisions a,b --timed-views N`.
+    /// --precisions a,b --timed-views N --lobes-model P`.
     pub fn from_args(args: &[String]) -> Result<Self, String> {
         let mut c = Self::default();
         let mut it = args.iter();
@@ -60,6 +69,7 @@ impl BenchConfig {
             let num = |v: &str| v.parse::<usize>().map_err(|e| format!("{flag} {v}: {e}"));
             match flag.as_str() {
                 "--model" => c.model = PathBuf::from(value),
+                "--lobes-model" => c.lobes_model = Some(PathBuf::from(value)),
                 "--size" => {
                     let (w, h) = value.split_once('x').ok_or("--size wants WxH")?;
                     c.width = num(w)? as u32;
@@ -247,6 +257,60 @@ fn load(
     NetReshader::load(&config.model, precision, engine.clone(), options).map_err(|e| e.to_string())
 }
 
+/// The lobe-head model to time: `--lobes-model`, else `--model` when it is a lobe-head
+/// manifest or a directory holding one (None: no lobes rows).
+fn lobes_model(config: &BenchConfig) -> Option<PathBuf> {
+    if let Some(p) = &config.lobes_model {
+        return Some(p.clone());
+    }
+    let m = &config.model;
+    let has = if m.is_dir() {
+        crate::reshade_net::lobes::heads_in(m).is_ok_and(|(lobes, _)| lobes)
+    } else {
+        is_lobes_manifest(m)
+    };
+    has.then(|| m.clone())
+}
+
+fn is_lobes_manifest(path: &Path) -> bool {
+    path.is_file()
+        && crate::manifest::Manifest::load(path)
+            .is_ok_and(|m| m.task == crate::manifest::Task::ReshadeLobes)
+}
+
+/// The lobe network once for the photo, then the closed form for every camera, timed
+/// after one untimed warm-up (plan building).
+fn time_lobe_views(
+    net: &LobeReshader,
+    image: &SrgbImage,
+    depth: &DepthMap,
+    centres: &[[f64; 3]],
+) -> Result<Timed, String> {
+    let camera = Intrinsics::from_hfov(image.width(), image.height(), TEST_SCENE_HFOV_DEG);
+    let warm = net
+        .prepare_photo(image, depth, &camera)
+        .map_err(|e| e.to_string())?;
+    warm.reshade_view(centres[0]).map_err(|e| e.to_string())?;
+    drop(warm);
+    let started = Instant::now();
+    let prepared = net
+        .prepare_photo(image, depth, &camera)
+        .map_err(|e| e.to_string())?;
+    let encoder_ms = started.elapsed().as_secs_f64() * 1e3;
+    let started = Instant::now();
+    let views = centres
+        .iter()
+        .map(|&c| prepared.reshade_view(c))
+        .collect::<Result<Vec<_>, _>>()
+        .map_err(|e| e.to_string())?;
+    let per_view_ms = started.elapsed().as_secs_f64() * 1e3 / centres.len() as f64;
+    Ok(Timed {
+        encoder_ms,
+        per_view_ms,
+        views,
+    })
+}
+
 /// Runs the benchmark and returns its report as Markdown.
 pub fn run(config: &BenchConfig) -> Result<String, String> {
     let (image, depth) = test_scene(config.width, config.height);
@@ -265,6 +329,10 @@ pub fn run(config: &BenchConfig) -> Result<String, String> {
         config.cone_deg
     );
     precision_table(config, &image, &depth, timed, &mut out)?;
+    if is_lobes_manifest(&config.model) {
+        // A lobe-head model alone: no residual network to profile or to vary per view.
+        return Ok(out);
+    }
     profile_table(config, &image, &depth, &mut out)?;
     options_table(config, &image, &depth, &centres, &mut out)?;
     Ok(out)
@@ -283,7 +351,8 @@ fn precision_table(
     );
     let mut ort_ms: Vec<(Precision, f64)> = Vec::new();
     let mut rows = Vec::new();
-    for name in &config.engines {
+    let residual = !is_lobes_manifest(&config.model);
+    for name in config.engines.iter().filter(|_| residual) {
         let engine = engine::by_name(name, config.threads).map_err(|e| e.to_string())?;
         for &precision in &config.precisions {
             let net = match load(config, &engine, precision, NetOptions::default()) {
@@ -316,8 +385,56 @@ fn precision_table(
             ));
         }
     }
+    let lobes = lobes_model(config);
+    if let Some(model) = &lobes {
+        lobe_rows(config, model, image, depth, centres, &mut rows)?;
+    }
     for row in rows {
         let _ = writeln!(out, "{}", fill_ratio(&row, &ort_ms));
+    }
+    if let Some(model) = lobes {
+        let _ = writeln!(
+            out,
+            "\n\"lobes\" rows: {}, the lobe head: \"encoder ms\" is its network, run once per photo; \"decoder ms/view\" the closed form per view in Rust on {} threads (no network call; the view's change added to the photo and clamped).",
+            model.display(),
+            config.threads
+        );
+    }
+    Ok(())
+}
+
+/// One row per engine and precision of the lobe-head model at `model` (precisions it was
+/// not exported at are left out).
+fn lobe_rows(
+    config: &BenchConfig,
+    model: &Path,
+    image: &SrgbImage,
+    depth: &DepthMap,
+    centres: &[[f64; 3]],
+    rows: &mut Vec<String>,
+) -> Result<(), String> {
+    for name in &config.engines {
+        let engine = engine::by_name(name, config.threads).map_err(|e| e.to_string())?;
+        for &precision in &config.precisions {
+            let has_precision = !model.is_dir()
+                || crate::reshade_net::manifests_where(model, Some(precision), |t| {
+                    t == crate::manifest::Task::ReshadeLobes
+                })
+                .is_ok_and(|m| !m.is_empty());
+            if !has_precision {
+                continue;
+            }
+            let timed = LobeReshader::load(model, precision, engine.clone(), NetOptions::default())
+                .map_err(|e| e.to_string())
+                .and_then(|net| time_lobe_views(&net, image, depth, centres));
+            rows.push(match timed {
+                Ok(t) => format!(
+                    "| {name} | {precision} lobes | {:.1} | {:.2} | – | – |",
+                    t.encoder_ms, t.per_view_ms
+                ),
+                Err(e) => format!("| {name} | {precision} lobes | failed: {e} | | | |"),
+            });
+        }
     }
     Ok(())
 }

@@ -48,6 +48,9 @@ pub enum Task {
     Reshade,
     ReshadeEncoder,
     ReshadeDecoder,
+    /// The lobe head: image, disparity and rays in, per-pixel lobes out, run once per
+    /// photo; the view enters through a closed form (`reshade_net::lobes`).
+    ReshadeLobes,
     Inpaint,
 }
 
@@ -58,6 +61,7 @@ impl fmt::Display for Task {
             Task::Reshade => "reshade",
             Task::ReshadeEncoder => "reshade-encoder",
             Task::ReshadeDecoder => "reshade-decoder",
+            Task::ReshadeLobes => "reshade-lobes",
             Task::Inpaint => "inpaint",
         })
     }
@@ -159,6 +163,20 @@ pub struct Manifest {
     pub validation: serde_json::Value,
     pub licence: String,
     pub source: String,
+    /// Lobe head only (task `reshade-lobes`): "lobes".
+    pub head: Option<String>,
+    /// Lobe head only: lobes per pixel (K); the output has 7K channels.
+    pub lobes: Option<u64>,
+    /// Lobe head only: the 7 channel names of one lobe, in order ([`LOBE_LAYOUT`]).
+    pub lobe_layout: Option<Vec<String>>,
+    /// Lobe head only: the 7K output channel names.
+    pub channels: Option<Vec<String>>,
+    /// Lobe head only: the soft threshold applied to the summed change (display units).
+    pub deadzone: Option<f64>,
+    /// Lobe head only: the encoding the change is added in ("display").
+    pub domain: Option<String>,
+    /// Lobe head only: the depth at disparity 1 (0.25: disparity = 0.25 / depth).
+    pub disparity_depth: Option<f64>,
 }
 
 /// A manifest together with where it was read from and the model bytes it vouches for.
@@ -272,8 +290,126 @@ pub fn signature(task: Task) -> Option<Signature> {
             ],
             outputs: &["reshaded"],
         }),
+        Task::ReshadeLobes => Some(Signature {
+            inputs: &["image", "disparity", "rays"],
+            outputs: &["lobes"],
+        }),
         Task::Depth | Task::Inpaint => None,
     }
+}
+
+/// The channels of one lobe in a `reshade-lobes` graph's output, in order.
+pub const LOBE_LAYOUT: [&str; 7] = [
+    "mu_x",
+    "mu_y",
+    "mu_z",
+    "sharpness",
+    "amp_r",
+    "amp_g",
+    "amp_b",
+];
+/// Lobes per pixel the training toolchain can make (NetConfig: 1..8).
+pub const MAX_LOBES: u64 = 8;
+/// The encoding the lobe head's change is summed in.
+pub const LOBE_DOMAIN: &str = "display";
+
+/// What the runtime needs from a lobe-head manifest beyond the common fields.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LobeSpec {
+    /// Lobes per pixel (K): the graph gives 7K channels.
+    pub lobes: usize,
+    /// Soft threshold of the summed change, in display units.
+    pub deadzone: f32,
+}
+
+impl LobeSpec {
+    pub fn channels(&self) -> usize {
+        LOBE_LAYOUT.len() * self.lobes
+    }
+}
+
+/// Checks the lobe head's fields of a `reshade-lobes` manifest (the common fields are
+/// [`check_reshade`]'s): head, K, the channel layout (and the output's 7K channels),
+/// dead zone and domain.
+pub fn lobe_spec(path: &Path, manifest: &Manifest) -> Result<LobeSpec, ManifestError> {
+    let err = |field: &str, problem: String| Err(field_error(path, field, problem));
+    match manifest.head.as_deref() {
+        Some("lobes") => {}
+        Some(other) => return err("head", format!("is {other:?}; expected \"lobes\"")),
+        None => {
+            return err(
+                "head",
+                "is missing (a reshade-lobes manifest says \"lobes\")".into(),
+            )
+        }
+    }
+    let k = match manifest.lobes {
+        Some(k) if (1..=MAX_LOBES).contains(&k) => k as usize,
+        Some(k) => return err("lobes", format!("is {k}; expected 1..={MAX_LOBES}")),
+        None => return err("lobes", "is missing".into()),
+    };
+    match &manifest.lobe_layout {
+        Some(layout) if layout.iter().map(String::as_str).eq(LOBE_LAYOUT) => {}
+        Some(layout) => {
+            return err(
+                "lobe_layout",
+                format!("is {layout:?}; the runtime reads {LOBE_LAYOUT:?}"),
+            )
+        }
+        None => return err("lobe_layout", "is missing".into()),
+    }
+    if let Some(channels) = &manifest.channels {
+        let expected: Vec<String> = (0..k)
+            .flat_map(|j| LOBE_LAYOUT.iter().map(move |n| format!("{n}{j}")))
+            .collect();
+        if *channels != expected {
+            return err(
+                "channels",
+                format!("are {channels:?}; {k} lobes of {LOBE_LAYOUT:?} are {expected:?}"),
+            );
+        }
+    }
+    let deadzone = match manifest.deadzone {
+        Some(t) if (0.0..0.5).contains(&t) => t as f32,
+        Some(t) => return err("deadzone", format!("is {t}; expected 0 <= deadzone < 0.5")),
+        None => return err("deadzone", "is missing".into()),
+    };
+    match manifest.domain.as_deref() {
+        Some(LOBE_DOMAIN) => {}
+        Some(other) => {
+            return err(
+                "domain",
+                format!("is {other:?}; the runtime adds the change in {LOBE_DOMAIN:?}"),
+            )
+        }
+        None => return err("domain", "is missing".into()),
+    }
+    if let Some(d) = manifest.disparity_depth {
+        if d != 0.25 {
+            return err(
+                "disparity_depth",
+                format!("is {d}; the runtime feeds clamp(0.25/depth, 0, 1)"),
+            );
+        }
+    }
+    let spec = LobeSpec { lobes: k, deadzone };
+    let (i, out) = manifest
+        .outputs
+        .iter()
+        .enumerate()
+        .find(|(_, t)| t.name == "lobes")
+        .expect("check_reshade checked the output names");
+    if out.shape.get(1) != Some(&Dim::Fixed(spec.channels() as u64)) {
+        return err(
+            &format!("outputs[{i}].shape"),
+            format!(
+                "of \"lobes\" has {:?} channels; {k} lobes (field `lobes`) need {}",
+                out.shape.get(1),
+                spec.channels()
+            ),
+        );
+    }
+    Ok(spec)
 }
 
 /// Checks that a manifest describes a reshading graph of `task` at `precision` whose
@@ -328,6 +464,9 @@ pub fn check_reshade(
     if task != Task::ReshadeEncoder {
         check_camera(path, manifest.camera.as_ref())?;
     }
+    if task == Task::ReshadeLobes {
+        lobe_spec(path, manifest)?;
+    }
     Ok(())
 }
 
@@ -356,7 +495,7 @@ fn check_names(
 /// depend on the network's widths, so only their rank is fixed).
 fn expected_shape(name: &str) -> (&'static str, usize, Option<u64>) {
     match name {
-        "image" | "reshaded" => ("NCHW", 4, Some(3)),
+        "image" | "reshaded" | "rays" => ("NCHW", 4, Some(3)),
         "disparity" => ("NCHW", 4, Some(1)),
         "camera" => ("NC", 2, Some(3)),
         _ => ("NCHW", 4, None),

@@ -320,7 +320,7 @@ fn render_views(
 ) -> Result<Vec<RgbImage>, PipelineError> {
     let training_depth = frame.depth(&fitted.depth);
     let prepared = t.time("reshade_prepare", || {
-        reshader.prepare(&fitted.image, &training_depth)
+        reshader.prepare(&fitted.image, &training_depth, &fitted.source)
     })?;
     let reach = relocate::reach_of(cameras.iter().map(|c| c.centre), &fitted.source);
     let relocation = t.time("relocate_prepare", || {
@@ -464,7 +464,9 @@ pub fn reshade_photo(
     let (focus, _) = req.scene.focus(req.focus);
     let frame = TrainingFrame::for_focus(focus);
     let training_depth = frame.depth(&req.scene.depth);
-    let prepared = reshader.prepare(&req.scene.photo.image, &training_depth)?;
+    let image = &req.scene.photo.image;
+    let camera = Intrinsics::from_hfov(image.width(), image.height(), req.scene.photo.hfov_deg);
+    let prepared = reshader.prepare(image, &training_depth, &camera)?;
     Ok(prepared.reshade(frame.camera(req.camera))?)
 }
 

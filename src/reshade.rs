@@ -7,6 +7,7 @@
 
 use crate::depth::DepthMap;
 use crate::photo::SrgbImage;
+use crate::views::Intrinsics;
 
 /// The depth at which the network's training scenes put their subjects' middle; each
 /// photo is rescaled so that its focus depth lands here before reshading (geometry is
@@ -24,11 +25,13 @@ pub trait Reshader {
     fn description(&self) -> String;
 
     /// View-independent work, run once per photo. `depth` is in training units (see
-    /// [`TrainingFrame`]).
+    /// [`TrainingFrame`]); `camera` is the camera that took `image` (its intrinsics at
+    /// `image`'s size), which the lobe head needs for each pixel's ray.
     fn prepare<'a>(
         &'a self,
         image: &'a SrgbImage,
         depth: &'a DepthMap,
+        camera: &Intrinsics,
     ) -> Result<Box<dyn PreparedPhoto + 'a>, ReshadeError>;
 }
 
@@ -59,6 +62,7 @@ impl Reshader for IdentityReshader {
         &'a self,
         image: &'a SrgbImage,
         _depth: &'a DepthMap,
+        _camera: &Intrinsics,
     ) -> Result<Box<dyn PreparedPhoto + 'a>, ReshadeError> {
         Ok(Box::new(Unchanged(image)))
     }
@@ -102,7 +106,8 @@ mod tests {
         img.put(1, 1, [0.2, 0.4, 0.6]);
         let depth = DepthMap::new(3, 2, vec![1.0; 6]);
         let reshader = IdentityReshader;
-        let prepared = reshader.prepare(&img, &depth).unwrap();
+        let camera = Intrinsics::from_hfov(3, 2, 60.0);
+        let prepared = reshader.prepare(&img, &depth, &camera).unwrap();
         assert_eq!(prepared.reshade([0.3, 0.0, 0.0]).unwrap(), img);
         assert_eq!(reshader.description(), "identity (no model)");
     }

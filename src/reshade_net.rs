@@ -10,6 +10,7 @@
 
 pub mod cli;
 mod keys;
+pub mod lobes;
 pub mod resample;
 
 use std::collections::HashMap;
@@ -22,6 +23,7 @@ use crate::engine::{Engine, EngineError, ModelSource, Plan, Tensor};
 use crate::manifest::{self, ManifestError, Precision, Task, VerifiedModel};
 use crate::photo::SrgbImage;
 use crate::reshade::{PreparedPhoto, ReshadeError, Reshader};
+use crate::views::Intrinsics;
 
 #[derive(Debug, thiserror::Error)]
 pub enum NetError {
@@ -310,7 +312,7 @@ impl Reshader for NetReshader {
             format!("single graph {}", short(&m.sha256))
         };
         format!(
-            "{} {} ({}, {weights}, engine {} x{} threads, scale {}, key views {}, batch {}, parallel views {})",
+            "{} {} ({}, head residual, {weights}, engine {} x{} threads, scale {}, key views {}, batch {}, parallel views {})",
             m.name,
             m.version,
             m.precision,
@@ -327,7 +329,9 @@ impl Reshader for NetReshader {
         &'a self,
         image: &'a SrgbImage,
         depth: &'a DepthMap,
+        _camera: &Intrinsics,
     ) -> Result<Box<dyn PreparedPhoto + 'a>, ReshadeError> {
+        // The residual head never sees the camera's geometry, only offsets.
         Ok(Box::new(self.prepare_photo(image, depth)?))
     }
 }
@@ -611,6 +615,12 @@ fn find_models(path: &Path, precision: Precision) -> Result<Form, NetError> {
         }
         Task::ReshadeEncoder => Task::ReshadeDecoder,
         Task::ReshadeDecoder => Task::ReshadeEncoder,
+        Task::ReshadeLobes => {
+            return Err(NetError::Model {
+                path: path.to_owned(),
+                problem: "is a lobe-head model (task \"reshade-lobes\"): load it with --head lobes (or by its manifest alone, without --head residual)".into(),
+            })
+        }
         other => {
             return Err(manifest::field_error(
                 path,
@@ -671,11 +681,21 @@ fn verified(path: &Path, task: Task, precision: Precision) -> Result<VerifiedMod
     Ok(model)
 }
 
-/// Reshading manifests in `dir` at `precision` (others, and files that are not
-/// manifests, are skipped).
-fn reshade_manifests(
+/// Whether a manifest's task is one of the residual head's graph forms (the paper's
+/// network: single graph or encoder/decoder pair).
+pub fn is_residual(task: Task) -> bool {
+    matches!(
+        task,
+        Task::Reshade | Task::ReshadeEncoder | Task::ReshadeDecoder
+    )
+}
+
+/// Manifests in `dir` at `precision` (None: any) whose task passes `wanted` (others, and
+/// files that are not manifests, are skipped), sorted by path.
+pub fn manifests_where(
     dir: &Path,
-    precision: Precision,
+    precision: Option<Precision>,
+    wanted: impl Fn(Task) -> bool,
 ) -> Result<Vec<(PathBuf, manifest::Manifest)>, NetError> {
     let entries = std::fs::read_dir(dir).map_err(|source| ManifestError::Io {
         path: dir.to_owned(),
@@ -688,7 +708,7 @@ fn reshade_manifests(
             continue;
         }
         match manifest::Manifest::load(&p) {
-            Ok(m) if manifest::signature(m.task).is_some() && m.precision == precision => {
+            Ok(m) if wanted(m.task) && precision.is_none_or(|want| m.precision == want) => {
                 found.push((p, m))
             }
             Ok(_) => {}
@@ -699,19 +719,43 @@ fn reshade_manifests(
     Ok(found)
 }
 
-/// "; it has fp32 (--precision fp32)" when `dir` holds reshading models at other
-/// precisions than the one asked for, so that the error says what would load.
-fn other_precisions(dir: &Path, asked: Precision) -> String {
+/// Residual-head reshading manifests in `dir` at `precision`.
+fn reshade_manifests(
+    dir: &Path,
+    precision: Precision,
+) -> Result<Vec<(PathBuf, manifest::Manifest)>, NetError> {
+    manifests_where(dir, Some(precision), is_residual)
+}
+
+/// "; it has fp32 (--precision fp32)" when `dir` holds models of the head `wanted`
+/// selects at other precisions than the one asked for, so that the error says what would
+/// load.
+pub(crate) fn other_precisions(dir: &Path, asked: Precision, wanted: fn(Task) -> bool) -> String {
     let found: Vec<String> = [Precision::Int8, Precision::Fp32, Precision::Fp16]
         .into_iter()
         .filter(|&p| p != asked)
-        .filter(|&p| reshade_manifests(dir, p).is_ok_and(|m| !m.is_empty()))
+        .filter(|&p| manifests_where(dir, Some(p), wanted).is_ok_and(|m| !m.is_empty()))
         .map(|p| format!("{p} (--precision {p})"))
         .collect();
     if found.is_empty() {
         String::new()
     } else {
         format!("; it has {}", found.join(", "))
+    }
+}
+
+/// "; it also holds <head> models: [files] (--head <head>)" when `dir` has models of the
+/// other head, so that an error about the asked head names what is there.
+pub(crate) fn other_head(dir: &Path, wanted: fn(Task) -> bool, head: &str) -> String {
+    let files: Vec<String> = manifests_where(dir, None, wanted)
+        .unwrap_or_default()
+        .into_iter()
+        .filter_map(|(p, _)| p.file_name().map(|n| n.to_string_lossy().into_owned()))
+        .collect();
+    if files.is_empty() {
+        String::new()
+    } else {
+        format!("; it also holds {head}-head models {files:?} (--head {head})")
     }
 }
 
@@ -732,8 +776,9 @@ fn find_in_dir(dir: &Path, precision: Precision) -> Result<Form, NetError> {
     let none = || NetError::Model {
         path: dir.to_owned(),
         problem: format!(
-            "holds no reshading model manifest with precision {precision}{}",
-            other_precisions(dir, precision)
+            "holds no residual-head reshading model manifest with precision {precision}{}{}",
+            other_precisions(dir, precision, is_residual),
+            other_head(dir, |t| t == Task::ReshadeLobes, "lobes"),
         ),
     };
     let ambiguous = |what: &str, list: &[&PathBuf]| NetError::Model {

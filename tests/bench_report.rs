@@ -277,3 +277,75 @@ fn bad_options_fail_before_measuring() {
     let err = bench::main(&args, "test").err().unwrap().to_string();
     assert!(err.contains("/nonexistent/previous.json"), "{err}");
 }
+
+#[test]
+fn the_reshade_bench_reports_the_lobe_head_s_cost_per_view() {
+    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
+    let config = reshader::bench_reshade::BenchConfig {
+        model: root.join("models/fixtures"),
+        width: 64,
+        height: 32,
+        views: 4,
+        timed_views: 2,
+        threads: 1,
+        engines: vec!["tract".into()],
+        precisions: vec![Precision::Fp32, Precision::Int8],
+        ..Default::default()
+    };
+    let text = reshader::bench_reshade::run(&config).unwrap();
+    for precision in ["fp32", "int8"] {
+        let row = text
+            .lines()
+            .find(|l| l.starts_with(&format!("| tract | {precision} lobes |")))
+            .unwrap_or_else(|| panic!("no {precision} lobes row in:\n{text}"));
+        let cells: Vec<&str> = row.split('|').map(str::trim).collect();
+        let once: f64 = cells[3].parse().unwrap_or_else(|_| panic!("{row}"));
+        let per_view: f64 = cells[4].parse().unwrap_or_else(|_| panic!("{row}"));
+        assert!(once > 0.0 && per_view > 0.0, "{row}");
+    }
+    assert!(text.contains("closed form per view"), "{text}");
+    // The residual rows and tables are still there.
+    assert!(text.contains("| tract | fp32 | "), "{text}");
+    assert!(text.contains("### Per-view cost options"), "{text}");
+
+    // A lobe manifest alone: its row only.
+    let alone = reshader::bench_reshade::BenchConfig {
+        model: root.join("models/fixtures/reshade-fixture-fp32-lobes.json"),
+        precisions: vec![Precision::Fp32],
+        ..config
+    };
+    let text = reshader::bench_reshade::run(&alone).unwrap();
+    assert!(text.contains("| tract | fp32 lobes |"), "{text}");
+    assert!(!text.contains("| tract | fp32 | "), "{text}");
+}
+
+#[test]
+fn reshader_bench_times_the_lobe_head_in_the_reshading_rows() {
+    let mut args = tiny_args();
+    args.reshade.head = Some(reshader::reshade_net::cli::Head::Lobes);
+    args.reshade.precision = Some(Precision::Fp32);
+    let r = bench::run(&args, "test").unwrap();
+    assert!(
+        r.reshade_model.contains("head lobes"),
+        "{}",
+        r.reshade_model
+    );
+    for case in &r.cases {
+        let row = case
+            .stages
+            .iter()
+            .find(|s| s.stage == "reshade decoder × views")
+            .unwrap();
+        assert!(row.detail.contains("closed form"), "{row:?}");
+        assert!(row.time.is_some_and(|t| t.median_ms > 0.0), "{row:?}");
+        let once = case
+            .stages
+            .iter()
+            .find(|s| s.stage == "reshade encoder")
+            .unwrap();
+        assert!(
+            once.detail.contains("lobe network once per photo"),
+            "{once:?}"
+        );
+    }
+}

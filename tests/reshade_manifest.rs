@@ -211,3 +211,190 @@ fn graph_names_must_match_the_manifest() {
     let msg = net.prepare_photo(&image, &depth).err().unwrap().to_string();
     assert!(msg.contains("graph's inputs"), "{msg}");
 }
+
+// --- the lobe head: its manifest fields and how a model is chosen -----------------------------
+
+mod lobes {
+    use super::*;
+    use reshader::reshade_net::cli::ReshadeArgs;
+    use reshader::reshade_net::lobes::LobeReshader;
+    use reshader::views::Intrinsics;
+
+    /// The fp32 lobe fixture copied into `dir`, its manifest edited by `edit`.
+    fn edited(dir: &Path, edit: impl FnOnce(&mut Value)) -> PathBuf {
+        let path = copy_fixture(Task::ReshadeLobes, Precision::Fp32, dir);
+        let mut m: Value = serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
+        edit(&mut m);
+        std::fs::write(&path, serde_json::to_string_pretty(&m).unwrap()).unwrap();
+        path
+    }
+
+    fn lobe_refusal(edit: impl FnOnce(&mut Value)) -> String {
+        let dir = tempfile::tempdir().unwrap();
+        let path = edited(dir.path(), edit);
+        match LobeReshader::load(&path, Precision::Fp32, tract(1), NetOptions::default()) {
+            Ok(_) => panic!("the edited lobe manifest was accepted"),
+            Err(e) => {
+                let msg = e.to_string();
+                assert!(
+                    msg.contains(path.to_str().unwrap()),
+                    "names the file: {msg}"
+                );
+                msg
+            }
+        }
+    }
+
+    #[test]
+    fn the_lobe_fields_are_checked() {
+        assert_names(&lobe_refusal(|m| m["head"] = json!("residual")), "head");
+        assert_names(&lobe_refusal(|m| m["domain"] = json!("linear")), "domain");
+        assert_names(&lobe_refusal(|m| m["deadzone"] = json!(0.7)), "deadzone");
+        assert_names(
+            &lobe_refusal(|m| m["lobe_layout"][3] = json!("lambda")),
+            "lobe_layout",
+        );
+        assert_names(&lobe_refusal(|m| m["lobes"] = json!(9)), "lobes");
+        assert_names(
+            &lobe_refusal(|m| m["inputs"][2]["shape"][1] = json!(2)),
+            "inputs[2].shape",
+        );
+        assert_names(
+            &lobe_refusal(|m| {
+                m.as_object_mut().unwrap().remove("lobes");
+            }),
+            "lobes",
+        );
+    }
+
+    #[test]
+    fn a_lobe_count_that_disagrees_with_the_output_channels_is_refused() {
+        // K = 3 with the output still listing 14 = 7·2 channels.
+        let msg = lobe_refusal(|m| {
+            m["lobes"] = json!(3);
+            m.as_object_mut().unwrap().remove("channels");
+        });
+        assert_names(&msg, "outputs[0].shape");
+        assert!(msg.contains("21"), "{msg}");
+    }
+
+    #[test]
+    fn a_graph_with_other_channels_than_its_manifest_is_refused_at_run_time() {
+        // A consistent manifest (K = 3, 21 channels) vouching for the 2-lobe graph.
+        let dir = tempfile::tempdir().unwrap();
+        let path = edited(dir.path(), |m| {
+            m["lobes"] = json!(3);
+            m.as_object_mut().unwrap().remove("channels");
+            m["outputs"][0]["shape"][1] = json!(21);
+        });
+        let net =
+            LobeReshader::load(&path, Precision::Fp32, tract(1), NetOptions::default()).unwrap();
+        let (image, depth) = reshade_support::scene(64, 32);
+        let camera = Intrinsics::from_hfov(64, 32, 60.0);
+        let msg = net
+            .prepare_photo(&image, &depth, &camera)
+            .err()
+            .unwrap()
+            .to_string();
+        assert!(
+            msg.contains("reshade-fixture-fp32-lobes.onnx")
+                && msg.contains(path.to_str().unwrap())
+                && msg.contains("21")
+                && msg.contains("14"),
+            "{msg}"
+        );
+    }
+
+    /// `--model`, `--precision`, `--head` as the CLI parses them.
+    fn args(extra: &[&str]) -> ReshadeArgs {
+        #[derive(clap::Parser)]
+        struct Cli {
+            #[command(flatten)]
+            reshade: ReshadeArgs,
+        }
+        let mut argv = vec!["reshader"];
+        argv.extend_from_slice(extra);
+        <Cli as clap::Parser>::try_parse_from(argv).unwrap().reshade
+    }
+
+    fn description(extra: &[&str]) -> Result<String, String> {
+        args(extra)
+            .build()
+            .map(|r| r.description())
+            .map_err(|e| e.to_string())
+    }
+
+    #[test]
+    fn a_directory_with_both_heads_loads_the_residual_one_unless_lobes_are_asked_for() {
+        let dir = fixture_dir();
+        let d = dir.to_str().unwrap();
+        let residual = description(&["--model", d, "--precision", "fp32"]).unwrap();
+        assert!(residual.contains("head residual"), "{residual}");
+        let lobes = description(&["--model", d, "--precision", "fp32", "--head", "lobes"]).unwrap();
+        assert!(
+            lobes.contains("head lobes") && lobes.contains("reshade-fixture-fp32-lobes"),
+            "{lobes}"
+        );
+        // int8: the weights-only lobe graph, found by its manifest whatever its name.
+        let int8 = description(&["--model", d, "--precision", "int8", "--head", "lobes"]).unwrap();
+        assert!(int8.contains("reshade-fixture-int8-wo-lobes"), "{int8}");
+    }
+
+    #[test]
+    fn a_manifest_decides_its_head_and_a_contradicting_head_is_refused() {
+        let lobes = manifest_path(Task::ReshadeLobes, Precision::Fp16);
+        let l = lobes.to_str().unwrap();
+        let d = description(&["--model", l]).unwrap();
+        assert!(d.contains("head lobes") && d.contains("(fp16"), "{d}");
+        let msg = description(&["--model", l, "--head", "residual"]).unwrap_err();
+        assert!(msg.contains(l) && msg.contains("--head residual"), "{msg}");
+        let residual = manifest_path(Task::ReshadeEncoder, Precision::Fp32);
+        let r = residual.to_str().unwrap();
+        let msg = description(&["--model", r, "--head", "lobes"]).unwrap_err();
+        assert!(msg.contains(r) && msg.contains("lobes"), "{msg}");
+        // The residual loader itself refuses a lobe manifest, saying how to load it.
+        let msg = NetReshader::load(&lobes, Precision::Fp16, tract(1), NetOptions::default())
+            .err()
+            .unwrap()
+            .to_string();
+        assert!(msg.contains(l) && msg.contains("--head lobes"), "{msg}");
+    }
+
+    #[test]
+    fn a_missing_precision_or_head_is_named_with_the_files_there_are() {
+        let dir = tempfile::tempdir().unwrap();
+        copy_fixture(Task::ReshadeLobes, Precision::Fp32, dir.path());
+        copy_fixture(Task::ReshadeEncoder, Precision::Int8, dir.path());
+        copy_fixture(Task::ReshadeDecoder, Precision::Int8, dir.path());
+        let d = dir.path().to_str().unwrap();
+        // No --head: both heads are there, so the residual one (int8 by default) loads.
+        assert!(description(&["--model", d])
+            .unwrap()
+            .contains("head residual"));
+        let msg = description(&["--model", d, "--head", "lobes"]).unwrap_err();
+        for part in [
+            d,
+            "precision int8",
+            "it has fp32 (--precision fp32)",
+            "reshade-fixture-int8-encoder.json",
+            "--head residual",
+        ] {
+            assert!(msg.contains(part), "{part:?} missing: {msg}");
+        }
+        let msg = description(&["--model", d, "--precision", "fp32"]).unwrap_err();
+        for part in [
+            d,
+            "residual-head",
+            "reshade-fixture-fp32-lobes.json",
+            "--head lobes",
+        ] {
+            assert!(msg.contains(part), "{part:?} missing: {msg}");
+        }
+        // A directory of lobe models only: that head, without being asked.
+        let only = tempfile::tempdir().unwrap();
+        copy_fixture(Task::ReshadeLobes, Precision::Fp32, only.path());
+        let o = only.path().to_str().unwrap();
+        let d = description(&["--model", o, "--precision", "fp32"]).unwrap();
+        assert!(d.contains("head lobes"), "{d}");
+    }
+}

@@ -230,8 +230,9 @@ fn the_reshader_trait_runs_the_network() {
         .reshade_views(&[CAMERA])
         .unwrap();
     let reshader: &dyn Reshader = &net;
+    let camera = reshader::views::Intrinsics::from_hfov(64, 32, 60.0);
     let via_trait = reshader
-        .prepare(&image, &depth)
+        .prepare(&image, &depth, &camera)
         .unwrap()
         .reshade(CAMERA)
         .unwrap();
@@ -281,4 +282,161 @@ fn int8_runs_through_tract_close_to_fp32() {
     let int8 = reshade(&net, &image, &[CAMERA]).remove(0);
     let d = max_abs_diff(&fp32, &int8);
     assert!(d < 0.1, "int8 output differs from fp32 by {d}");
+}
+
+// --- the lobe head ----------------------------------------------------------------------------
+
+mod lobes {
+    use super::*;
+    use reshader::reshade_net::lobes::LobeReshader;
+    use reshader::views::Intrinsics;
+
+    fn lobe_net(threads: usize, options: NetOptions) -> LobeReshader {
+        let path = manifest_path(Task::ReshadeLobes, Precision::Fp32);
+        LobeReshader::load(&path, Precision::Fp32, tract(threads), options).unwrap()
+    }
+
+    fn camera(image: &SrgbImage) -> Intrinsics {
+        Intrinsics::from_hfov(image.width(), image.height(), 60.0)
+    }
+
+    #[test]
+    fn any_photo_size_gives_a_view_of_that_size_and_the_photo_at_camera_zero() {
+        let net = lobe_net(1, NetOptions::default());
+        for (w, h) in [(64, 32), (50, 37), (33, 70)] {
+            let (image, depth) = scene(w, h);
+            let prepared = net.prepare_photo(&image, &depth, &camera(&image)).unwrap();
+            let (pw, ph) = prepared.network_size();
+            assert_eq!((pw % 32, ph % 32), (0, 0));
+            let out = prepared.reshade_view(CAMERA).unwrap();
+            assert_eq!((out.width(), out.height()), (w, h));
+            assert!(out.data().iter().all(|v| (0.0..=1.0).contains(v)));
+            assert_ne!(out, image, "{w}x{h}: the fixture's lobes change the view");
+            assert_eq!(prepared.reshade_view([0.0; 3]).unwrap(), image);
+        }
+    }
+
+    #[test]
+    fn views_do_not_depend_on_the_thread_count() {
+        let (image, depth) = scene(96, 64);
+        let cam = camera(&image);
+        let one = lobe_net(1, NetOptions::default());
+        let two = lobe_net(2, NetOptions::default());
+        let a = one.prepare_photo(&image, &depth, &cam).unwrap();
+        let b = two.prepare_photo(&image, &depth, &cam).unwrap();
+        for centre in [CAMERA, [-0.5, 0.0, 0.0], [0.0, 0.3, -0.4]] {
+            assert_eq!(
+                a.reshade_view(centre).unwrap(),
+                b.reshade_view(centre).unwrap()
+            );
+        }
+    }
+
+    #[test]
+    fn a_reduced_working_resolution_upsamples_the_change() {
+        let (image, depth) = scene(96, 64);
+        let cam = camera(&image);
+        let full = lobe_net(1, NetOptions::default());
+        let half = lobe_net(
+            2,
+            NetOptions {
+                scale: 0.5,
+                ..Default::default()
+            },
+        );
+        let a = full.prepare_photo(&image, &depth, &cam).unwrap();
+        let b = half.prepare_photo(&image, &depth, &cam).unwrap();
+        assert_eq!(b.network_size(), (64, 32));
+        assert_eq!((b.field().width(), b.field().height()), (48, 32));
+        assert_eq!(b.reshade_view([0.0; 3]).unwrap(), image);
+        let (va, vb) = (
+            a.reshade_view(CAMERA).unwrap(),
+            b.reshade_view(CAMERA).unwrap(),
+        );
+        assert_eq!((vb.width(), vb.height()), (96, 64));
+        assert_ne!(vb, image);
+        // The same network at half the resolution: close to the full-resolution view,
+        // not equal to it.
+        let d = max_abs_diff(&va, &vb);
+        assert!(d > 0.0 && d < 0.5, "{d}");
+    }
+
+    #[test]
+    fn offsets_beyond_the_trained_range_are_kept_unless_limited() {
+        let (image, depth) = scene(64, 32);
+        let cam = camera(&image);
+        let far = [0.9, 0.0, 0.0];
+        let free = lobe_net(1, NetOptions::default());
+        let limited = lobe_net(
+            1,
+            NetOptions {
+                max_offset: Some(0.3),
+                ..Default::default()
+            },
+        );
+        let a = free.prepare_photo(&image, &depth, &cam).unwrap();
+        let b = limited.prepare_photo(&image, &depth, &cam).unwrap();
+        assert_ne!(
+            a.reshade_view(far).unwrap(),
+            a.reshade_view([0.3, 0.0, 0.0]).unwrap()
+        );
+        assert_eq!(
+            b.reshade_view(far).unwrap(),
+            a.reshade_view([0.3, 0.0, 0.0]).unwrap()
+        );
+        assert!(limited.description().contains("offsets limited to 0.3"));
+    }
+
+    #[test]
+    fn the_reshader_trait_runs_the_lobe_head_and_names_it() {
+        let net = lobe_net(2, NetOptions::default());
+        let (image, depth) = scene(64, 32);
+        let cam = camera(&image);
+        let direct = net
+            .prepare_photo(&image, &depth, &cam)
+            .unwrap()
+            .reshade_view(CAMERA)
+            .unwrap();
+        let reshader: &dyn Reshader = &net;
+        let via_trait = reshader
+            .prepare(&image, &depth, &cam)
+            .unwrap()
+            .reshade_all(&[CAMERA, [0.0; 3]])
+            .unwrap();
+        assert_eq!(via_trait, vec![direct, image.clone()]);
+        let d = reshader.description();
+        let text =
+            std::fs::read_to_string(manifest_path(Task::ReshadeLobes, Precision::Fp32)).unwrap();
+        let m: serde_json::Value = serde_json::from_str(&text).unwrap();
+        let sha = &m["sha256"].as_str().unwrap()[..12];
+        assert!(
+            d.contains("head lobes") && d.contains("2 lobes") && d.contains(sha),
+            "{d}"
+        );
+        assert!(d.contains("reshade-fixture-fp32-lobes"), "{d}");
+    }
+
+    #[test]
+    fn bad_inputs_are_errors_not_panics() {
+        let net = lobe_net(1, NetOptions::default());
+        let (image, _) = scene(64, 32);
+        let (_, depth) = scene(32, 32);
+        let msg = net
+            .prepare_photo(&image, &depth, &camera(&image))
+            .err()
+            .unwrap()
+            .to_string();
+        assert!(msg.contains("32x32") && msg.contains("64x32"), "{msg}");
+        let (image, depth) = scene(64, 32);
+        let other = Intrinsics::from_hfov(128, 64, 60.0);
+        let msg = net
+            .prepare_photo(&image, &depth, &other)
+            .err()
+            .unwrap()
+            .to_string();
+        assert!(msg.contains("128x64") && msg.contains("64x32"), "{msg}");
+        let mut zero = camera(&image);
+        zero.fx = 0.0;
+        assert!(net.prepare_photo(&image, &depth, &zero).is_err());
+    }
 }

@@ -163,3 +163,134 @@ mod onnxruntime {
         }
     }
 }
+
+// --- the lobe head (models/fixtures/parity-lobes.json) ----------------------------------------
+
+mod lobes {
+    use super::*;
+    use reshader::manifest::LobeSpec;
+    use reshader::reshade_net::lobes::{pixel_rays, LobeField, LobeReshader};
+    use reshader::views::Intrinsics;
+
+    /// The brief's bound for the runtime against PyTorch: one 8-bit level per pixel.
+    const ONE_LEVEL: f32 = 1.0 / 255.0;
+
+    fn parity() -> Value {
+        let text = std::fs::read_to_string(fixture_dir().join("parity-lobes.json")).unwrap();
+        let p: Value = serde_json::from_str(&text).unwrap();
+        assert_eq!(p["format"], "reshader-lobe-parity/1");
+        p
+    }
+
+    /// The camera the fixture's rays were made with, as the pipeline describes a photo's:
+    /// its horizontal field of view, the principal point at the centre.
+    fn camera(p: &Value) -> Intrinsics {
+        let (h, w) = (
+            p["height"].as_u64().unwrap() as u32,
+            p["width"].as_u64().unwrap() as u32,
+        );
+        let c = Intrinsics::from_hfov(w, h, p["camera"]["hfov_deg"].as_f64().unwrap());
+        let fx = p["camera"]["fx"].as_f64().unwrap();
+        assert!((c.fx - fx).abs() < 1e-9 * fx, "{} vs {fx}", c.fx);
+        // The fixture's principal point is OpenCV's (pixel centres at integers).
+        assert_eq!(c.cx - 0.5, p["camera"]["cx"].as_f64().unwrap());
+        assert_eq!(c.cy - 0.5, p["camera"]["cy"].as_f64().unwrap());
+        c
+    }
+
+    fn cases(p: &Value) -> Vec<([f64; 3], &Value)> {
+        p["cases"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|case| {
+                let c: Vec<f64> = case["camera"]
+                    .as_array()
+                    .unwrap()
+                    .iter()
+                    .map(|v| v.as_f64().unwrap())
+                    .collect();
+                ([c[0], c[1], c[2]], case)
+            })
+            .collect()
+    }
+
+    fn check(precision: Precision, threads: usize) {
+        let p = parity();
+        let spec = &p["precisions"][precision.to_string()];
+        let key = spec["reference"].as_str().unwrap();
+        let tolerance = (spec["tolerance"].as_f64().unwrap() as f32).max(ONE_LEVEL);
+        let (image, depth) = inputs(&p);
+        let path = manifest_path(Task::ReshadeLobes, precision);
+        assert_eq!(
+            path.file_name().unwrap().to_str().unwrap(),
+            spec["model"].as_str().unwrap()
+        );
+        let net =
+            LobeReshader::load(&path, precision, tract(threads), NetOptions::default()).unwrap();
+        let prepared = net.prepare_photo(&image, &depth, &camera(&p)).unwrap();
+        let mut beyond = false;
+        for (centre, case) in cases(&p) {
+            let out = prepared.reshade_view(centre).unwrap();
+            if centre == [0.0; 3] {
+                assert_eq!(
+                    out, image,
+                    "{precision}: the input camera must give the photo"
+                );
+                continue;
+            }
+            let d = max_abs_diff(&out, &reference(&p, case, key));
+            eprintln!("lobes {precision} camera {centre:?}: max |runtime - PyTorch| {d:.2e}");
+            assert!(
+                d <= tolerance,
+                "{precision} camera {centre:?}: {d} > {tolerance}"
+            );
+            // And the view really changes (the comparison is not between two photos).
+            assert!(max_abs_diff(&out, &image) > 0.05, "{precision} {centre:?}");
+            beyond |= centre.iter().map(|c| c * c).sum::<f64>().sqrt() > 0.3;
+        }
+        assert!(beyond, "a camera beyond the trained 0.3 offset is checked");
+    }
+
+    #[test]
+    fn fp32_lobes_match_pytorch_within_one_level_and_the_input_camera_is_the_photo() {
+        check(Precision::Fp32, 1);
+        check(Precision::Fp32, 2);
+    }
+
+    #[test]
+    fn fp16_and_int8_lobes_match_their_references() {
+        check(Precision::Fp16, 1);
+        check(Precision::Int8, 2);
+    }
+
+    #[test]
+    fn the_closed_form_on_pytorch_s_lobes_is_pytorch_s_shading() {
+        // No engine: the fixture's own lobes through the Rust closed form, so that any
+        // difference is the formula's, not the network's.
+        let p = parity();
+        let (h, w) = (
+            p["height"].as_u64().unwrap() as usize,
+            p["width"].as_u64().unwrap() as usize,
+        );
+        let (image, depth) = inputs(&p);
+        let spec = LobeSpec {
+            lobes: p["lobes"].as_u64().unwrap() as usize,
+            deadzone: p["deadzone"].as_f64().unwrap() as f32,
+        };
+        let lobes = f32s(&base64(p["lobes_fp32"].as_str().unwrap()));
+        let disparity: Vec<f32> = depth
+            .data()
+            .iter()
+            .map(|&z| reshader::reshade_net::disparity(z))
+            .collect();
+        let rays = pixel_rays(&camera(&p), w, h);
+        let field = LobeField::new(spec, w, h, &lobes, &disparity, &rays).unwrap();
+        for (centre, case) in cases(&p) {
+            let out = field.reshade(&image, centre, 2).unwrap();
+            let d = max_abs_diff(&out, &reference(&p, case, "reshaded"));
+            eprintln!("closed form on PyTorch's lobes, camera {centre:?}: {d:.2e}");
+            assert!(d <= 1e-5, "camera {centre:?}: {d}");
+        }
+    }
+}

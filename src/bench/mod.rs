@@ -21,7 +21,8 @@ use crate::output::OutputError;
 use crate::photo::PhotoError;
 use crate::relocate::{RelocateArgs, RelocateError, Relocator};
 use crate::reshade::Reshader;
-use crate::reshade_net::cli::{ReshadeArgs, DEFAULT_MODEL_DIR};
+use crate::reshade_net::cli::{Head, ReshadeArgs, DEFAULT_MODEL_DIR};
+use crate::reshade_net::lobes::LobeReshader;
 use crate::reshade_net::{NetError, NetOptions, NetReshader};
 use crate::views::ViewError;
 
@@ -203,11 +204,40 @@ pub fn main(args: &BenchArgs, command: &str) -> Result<Report, BenchError> {
     Ok(report)
 }
 
+/// The reshading model timed: either head, as `render` would load it.
+pub(crate) enum BenchReshader {
+    Residual(NetReshader),
+    Lobes(LobeReshader),
+}
+
+impl BenchReshader {
+    pub fn options(&self) -> &NetOptions {
+        match self {
+            BenchReshader::Residual(net) => net.options(),
+            BenchReshader::Lobes(net) => net.options(),
+        }
+    }
+
+    pub fn description(&self) -> String {
+        match self {
+            BenchReshader::Residual(net) => net.description(),
+            BenchReshader::Lobes(net) => net.description(),
+        }
+    }
+
+    pub fn head(&self) -> Head {
+        match self {
+            BenchReshader::Residual(_) => Head::Residual,
+            BenchReshader::Lobes(_) => Head::Lobes,
+        }
+    }
+}
+
 /// Everything the stages share across photos and boards.
 pub(crate) struct Context {
     pub threads: usize,
     pub depth: DepthNet,
-    pub reshader: NetReshader,
+    pub reshader: BenchReshader,
     pub reshade_label: String,
     pub relocator: Box<dyn Relocator>,
     /// The same model with the per-view cost options (a)+(b) of the reshading design,
@@ -259,19 +289,30 @@ pub fn run(args: &BenchArgs, command: &str) -> Result<Report, BenchError> {
     let threads = r.reshade_threads.unwrap_or(args.threads);
     let per_view = (threads / r.parallel_views.max(1)).max(1);
     let precision = r.precision_for(Some(model.path()));
-    let reshader = NetReshader::load(
-        model.path(),
-        precision,
-        engine::by_name(&r.engine, per_view)?,
-        r.options(),
-    )?;
-    let reshade_label = reshade_label(&reshader);
+    let head = r.head_for(model.path())?;
+    let reshader = match head {
+        Head::Residual => BenchReshader::Residual(NetReshader::load(
+            model.path(),
+            precision,
+            engine::by_name(&r.engine, per_view)?,
+            r.options(),
+        )?),
+        Head::Lobes => BenchReshader::Lobes(LobeReshader::load(
+            model.path(),
+            precision,
+            engine::by_name(&r.engine, threads)?,
+            r.options(),
+        )?),
+    };
+    let reshade_label = reshade_label(&reshader.description());
     let candidate_options = NetOptions {
         scale: CANDIDATE_SCALE,
         key_views: Some(CANDIDATE_KEY_VIEWS),
         ..r.options()
     };
-    let candidate = if args.no_naive || candidate_options == r.options() {
+    // The candidate options cut the residual head's network runs per view; the lobe head
+    // has none to cut.
+    let candidate = if args.no_naive || candidate_options == r.options() || head == Head::Lobes {
         None
     } else {
         Some(NetReshader::load(
@@ -321,7 +362,7 @@ pub fn run(args: &BenchArgs, command: &str) -> Result<Report, BenchError> {
     let peer = if args.no_peer {
         Vec::new()
     } else {
-        peer_rows(args, &ctx, model.path(), &cases)?
+        peer_rows(args, &ctx, model.path(), head, &cases)?
     };
     let naive = if args.no_naive {
         Vec::new()
@@ -359,8 +400,8 @@ fn max_opt(a: Option<f64>, b: Option<f64>) -> Option<f64> {
 
 /// The model's own description, with a loud label on a stand-in (told by the name the
 /// exporter gave it, however it was chosen).
-fn reshade_label(net: &NetReshader) -> String {
-    let description = net.description();
+fn reshade_label(description: &str) -> String {
+    let description = description.to_owned();
     if description.contains("fixture") {
         format!(
             "{description} — FIXTURE STAND-IN (tiny test network: its times say nothing about a trained reshading model)"
@@ -387,14 +428,19 @@ pub fn choose_model(args: &BenchArgs) -> Result<ModelChoice, BenchError> {
         return Ok(ModelChoice::Given(p));
     }
     let shipped = source_path(DEFAULT_MODEL_DIR);
-    if shipped.is_dir() && !reshade_manifests(&shipped, Some(precision))?.is_empty() {
+    let head = args
+        .reshade
+        .head
+        .unwrap_or(crate::reshade_net::cli::DEFAULT_HEAD);
+    if shipped.is_dir() && !reshade_manifests(&shipped, Some(precision), head)?.is_empty() {
         return Ok(ModelChoice::Shipped(shipped));
     }
     log::warn!(
-        "no {precision} reshading model in {}: timing a stand-in",
+        "no {precision} {head}-head reshading model in {}: timing a stand-in",
         shipped.display()
     );
-    if precision != Precision::Int8 {
+    // The untrained stand-in is the residual head's architecture.
+    if precision != Precision::Int8 && head == Head::Residual {
         match untrained_model(args, precision) {
             Ok(path) => return Ok(ModelChoice::Untrained(path)),
             Err(e) => log::warn!("untrained stand-in not available ({e}); using the fixture"),
@@ -508,13 +554,14 @@ fn python(args: &BenchArgs) -> Result<PathBuf, BenchError> {
     Ok(PathBuf::from(venv).join("bin/python"))
 }
 
-/// The reshading manifests of `model` at `precision` (None: every precision). For a
-/// directory: its manifests, leaving out a precision's single graph when the pair of
-/// that precision is there (the runtime runs the pair). For a manifest: it and, for one
-/// half of a pair, the other half beside it.
+/// The reshading manifests of `model` at `precision` (None: every precision) for `head`.
+/// For a directory: its manifests of that head, leaving out a precision's single graph
+/// when the pair of that precision is there (the runtime runs the pair). For a manifest:
+/// it and, for one half of a pair, the other half beside it.
 fn reshade_manifests(
     model: &Path,
     precision: Option<Precision>,
+    head: Head,
 ) -> Result<Vec<PathBuf>, BenchError> {
     if model.is_file() {
         let mut files = vec![model.to_owned()];
@@ -541,10 +588,10 @@ fn reshade_manifests(
         .filter_map(|p| manifest::Manifest::load(&p).ok().map(|m| (p, m)))
         .filter(|(_, m)| {
             precision.is_none_or(|p| m.precision == p)
-                && matches!(
-                    m.task,
-                    Task::Reshade | Task::ReshadeEncoder | Task::ReshadeDecoder
-                )
+                && match head {
+                    Head::Residual => crate::reshade_net::is_residual(m.task),
+                    Head::Lobes => m.task == Task::ReshadeLobes,
+                }
         })
         .collect();
     let split: Vec<Precision> = found
@@ -569,6 +616,7 @@ fn peer_rows(
     args: &BenchArgs,
     ctx: &Context,
     model: &Path,
+    head: Head,
     cases: &[Case],
 ) -> Result<Vec<PeerRow>, BenchError> {
     let mut jobs = Vec::new();
@@ -593,7 +641,7 @@ fn peer_rows(
         .find(|c| Some(&c.board) == cases.first().map(|f| &f.board))
     {
         let [ww, wh] = case.work_size;
-        for path in reshade_manifests(model, None)? {
+        for path in reshade_manifests(model, None, head)? {
             let model = manifest::load_verified(&path)?;
             let m = model.manifest.size_multiple as usize;
             let label = format!("{} {}", model.manifest.task, model.manifest.name);
@@ -854,10 +902,10 @@ mod tests {
     fn the_peer_times_the_files_the_runtime_runs() {
         let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("models/fixtures");
         // Pairs exist for every precision, so no single graph is timed.
-        let all = names(&reshade_manifests(&dir, None).unwrap());
+        let all = names(&reshade_manifests(&dir, None, Head::Residual).unwrap());
         assert_eq!(all.len(), 6, "{all:?}");
         assert!(all.iter().all(|n| n.contains("coder")), "{all:?}");
-        let fp32 = names(&reshade_manifests(&dir, Some(Precision::Fp32)).unwrap());
+        let fp32 = names(&reshade_manifests(&dir, Some(Precision::Fp32), Head::Residual).unwrap());
         assert_eq!(
             fp32,
             [
@@ -867,7 +915,7 @@ mod tests {
         );
         let half = dir.join("reshade-fixture-int8-decoder.json");
         assert_eq!(
-            names(&reshade_manifests(&half, None).unwrap()),
+            names(&reshade_manifests(&half, None, Head::Residual).unwrap()),
             [
                 "reshade-fixture-int8-encoder.json",
                 "reshade-fixture-int8-decoder.json"
@@ -875,7 +923,7 @@ mod tests {
         );
         let single = dir.join("reshade-fixture-int8.json");
         assert_eq!(
-            names(&reshade_manifests(&single, None).unwrap()),
+            names(&reshade_manifests(&single, None, Head::Residual).unwrap()),
             ["reshade-fixture-int8.json"]
         );
     }

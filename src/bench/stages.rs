@@ -12,11 +12,12 @@ use crate::photo::{Photo, SrgbImage};
 use crate::pipeline::Fitted;
 use crate::relocate::reach_of;
 use crate::reshade::TrainingFrame;
+use crate::reshade_net::cli::Head;
 use crate::reshade_net::NetReshader;
 use crate::views::{robust_focus, robust_range, ViewCamera, ViewRig};
 
 use super::report::{Case, StageRow, Stat};
-use super::{io_err, stage_stats, BenchError, Context};
+use super::{io_err, stage_stats, BenchError, BenchReshader, Context};
 
 /// Writes the deterministic synthetic photo (the reshading benchmark's test scene) as a
 /// JPEG, so that decoding it is part of the measurement like for a real photo.
@@ -183,13 +184,29 @@ fn reshade_and_relocate(
             .prepare(&fitted.image, &fitted.depth, &fitted.source, reach)
     })?;
     let training_depth = p.frame.depth(&fitted.depth);
-    let prepared = timed(t, "reshade encoder", || {
-        ctx.reshader.prepare_photo(&fitted.image, &training_depth)
-    })?;
     let centres: Vec<[f64; 3]> = p.cameras.iter().map(|c| p.frame.camera(c.centre)).collect();
-    let colours = timed(t, "reshade decoder × views", || {
-        prepared.reshade_views(&centres)
-    })?;
+    let colours = match &ctx.reshader {
+        BenchReshader::Residual(net) => {
+            let prepared = timed(t, "reshade encoder", || {
+                net.prepare_photo(&fitted.image, &training_depth)
+            })?;
+            timed(t, "reshade decoder × views", || {
+                prepared.reshade_views(&centres)
+            })?
+        }
+        // The lobe network in the encoder's row, the closed form in the decoder's.
+        BenchReshader::Lobes(net) => {
+            let prepared = timed(t, "reshade encoder", || {
+                net.prepare_photo(&fitted.image, &training_depth, &fitted.source)
+            })?;
+            timed(t, "reshade decoder × views", || {
+                centres
+                    .iter()
+                    .map(|&c| prepared.reshade_view(c))
+                    .collect::<Result<Vec<_>, _>>()
+            })?
+        }
+    };
     let views = timed(t, "LDI render × views", || {
         p.cameras
             .iter()
@@ -210,11 +227,16 @@ fn time_reshading(net: &NetReshader, p: &Prepared) -> Result<f64, BenchError> {
     Ok(started.elapsed().as_secs_f64() * 1e3)
 }
 
-/// The size the network runs at, and the residual's upsampling when it is reduced.
+/// The size the network runs at, and the residual's (or the lobe head's change's)
+/// upsampling when it is reduced.
 fn reshade_size(ctx: &Context, ww: u32, wh: u32) -> String {
     let scale = ctx.reshader.options().scale;
     if scale < 1.0 {
-        format!("×{scale} of {ww}x{wh} (residual upsampled)")
+        let what = match ctx.reshader.head() {
+            Head::Residual => "residual",
+            Head::Lobes => "change",
+        };
+        format!("×{scale} of {ww}x{wh} ({what} upsampled)")
     } else {
         format!("{ww}x{wh}")
     }
@@ -245,7 +267,22 @@ fn detail(ctx: &Context, stage: &str, board: &Board, run: &Run) -> String {
             "once per photo at {ww}x{wh} by the runtime's relocator: {}",
             ctx.relocator.description()
         ),
-        "reshade encoder" if ctx.reshader.is_split() => {
+        "reshade encoder" if ctx.reshader.head() == Head::Lobes => format!(
+            "lobe network once per photo at {}",
+            reshade_size(ctx, ww, wh)
+        ),
+        "reshade decoder × views" if ctx.reshader.head() == Head::Lobes => {
+            let threads = match &ctx.reshader {
+                BenchReshader::Lobes(net) => net.threads(),
+                BenchReshader::Residual(_) => 0,
+            };
+            format!(
+                "{views} views, the lobe head's closed form per view in Rust on {threads} threads (no network), at {}",
+                reshade_size(ctx, ww, wh)
+            )
+        }
+        "reshade encoder" if matches!(&ctx.reshader, BenchReshader::Residual(net) if net.is_split()) =>
+        {
             format!("once per photo at {}", reshade_size(ctx, ww, wh))
         }
         "reshade encoder" => {

@@ -553,7 +553,7 @@ fn relocated_views(
         .relocator
         .prepare(&image, depth, &source, reach)?;
     let reshaded = match &state.live.reshader {
-        Some(reshader) => reshade_views(&**reshader, &image, depth, focus, &cameras)?,
+        Some(reshader) => reshade_views(&**reshader, &image, depth, &source, focus, &cameras)?,
         None => Vec::new(),
     };
     cameras
@@ -572,12 +572,13 @@ fn reshade_views(
     reshader: &dyn Reshader,
     image: &SrgbImage,
     depth: &DepthMap,
+    source: &Intrinsics,
     focus: f64,
     cameras: &[ViewCamera],
 ) -> Result<Vec<SrgbImage>, LiveError> {
     let frame = TrainingFrame::for_focus(focus);
     let training_depth = frame.depth(depth);
-    let prepared = reshader.prepare(image, &training_depth)?;
+    let prepared = reshader.prepare(image, &training_depth, source)?;
     let centres: Vec<[f64; 3]> = cameras.iter().map(|c| frame.camera(c.centre)).collect();
     Ok(prepared.reshade_all(&centres)?)
 }

@@ -7,6 +7,7 @@ use crate::engine;
 use crate::manifest::Precision;
 use crate::reshade::{IdentityReshader, Reshader};
 
+use super::lobes::{heads_in, LobeReshader};
 use super::{NetError, NetOptions, NetReshader};
 
 /// Where the shipped reshading models live, relative to the working directory or the
@@ -49,7 +50,33 @@ pub struct ReshadeArgs {
     /// Threads for reshading (default: every core).
     #[arg(long)]
     pub reshade_threads: Option<usize>,
+    /// Reshading head: residual (the paper's network, run per view) or lobes (a network
+    /// run once per photo and a closed form per view). Default: a --model manifest's own
+    /// head; for a directory, residual when it holds residual-head models, else lobes.
+    #[arg(long, value_enum)]
+    pub head: Option<Head>,
 }
+
+/// The two reshading heads a model can have; its manifest's task says which.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum Head {
+    /// The paper's residual network (tasks reshade, reshade-encoder, reshade-decoder).
+    Residual,
+    /// Per-pixel lobes once per photo, a closed form per view (task reshade-lobes).
+    Lobes,
+}
+
+impl std::fmt::Display for Head {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Head::Residual => "residual",
+            Head::Lobes => "lobes",
+        })
+    }
+}
+
+/// The head a model directory holding both kinds is loaded with when --head is not given.
+pub const DEFAULT_HEAD: Head = Head::Residual;
 
 fn parse_precision(s: &str) -> Result<Precision, String> {
     s.parse()
@@ -67,6 +94,32 @@ impl ReshadeArgs {
                 .and_then(|p| crate::manifest::Manifest::load(p).ok())
                 .map_or(DEFAULT_PRECISION, |m| m.precision)
         })
+    }
+
+    /// The head `--head` asks for, else the one the model at `path` has: a manifest's own
+    /// (its task), for a directory [`DEFAULT_HEAD`] unless it holds only lobe-head models.
+    /// A manifest of the other head than `--head` is refused, naming it.
+    pub fn head_for(&self, path: &Path) -> Result<Head, NetError> {
+        if path.is_dir() {
+            return Ok(self.head.unwrap_or_else(|| match heads_in(path) {
+                Ok((true, false)) => Head::Lobes,
+                _ => DEFAULT_HEAD,
+            }));
+        }
+        let own = match crate::manifest::Manifest::load(path) {
+            Ok(m) if m.task == crate::manifest::Task::ReshadeLobes => Head::Lobes,
+            // Unreadable manifests are reported by the loader, with the file's name.
+            _ => Head::Residual,
+        };
+        match self.head {
+            Some(asked) if asked != own => Err(NetError::Model {
+                path: path.to_owned(),
+                problem: format!(
+                    "is a {own}-head model but --head {asked} was given: pass a {asked}-head manifest (or its directory), or drop --head"
+                ),
+            }),
+            _ => Ok(own),
+        }
     }
 
     pub fn options(&self) -> NetOptions {
@@ -104,12 +157,26 @@ impl ReshadeArgs {
         };
         let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
         let threads = self.reshade_threads.unwrap_or(cores);
-        let per_view = (threads / self.parallel_views.max(1)).max(1);
-        let engine = engine::by_name(&self.engine, per_view)?;
         let precision = self.precision_for(Some(&path));
-        let net = NetReshader::load(&path, precision, engine, self.options())?;
+        let net: Box<dyn Reshader + Send + Sync> = match self.head_for(&path)? {
+            Head::Residual => {
+                let per_view = (threads / self.parallel_views.max(1)).max(1);
+                let engine = engine::by_name(&self.engine, per_view)?;
+                Box::new(NetReshader::load(&path, precision, engine, self.options())?)
+            }
+            // One network run per photo on every thread, then the closed form on as many.
+            Head::Lobes => {
+                let engine = engine::by_name(&self.engine, threads)?;
+                Box::new(LobeReshader::load(
+                    &path,
+                    precision,
+                    engine,
+                    self.options(),
+                )?)
+            }
+        };
         log::info!("reshading with {}", net.description());
-        Ok(Box::new(net))
+        Ok(net)
     }
 }
 

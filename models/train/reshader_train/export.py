@@ -892,6 +892,11 @@ def run(args: argparse.Namespace) -> int:
 
     try:
         net, ckpt = load_any_checkpoint(args.checkpoint)
+        if net.cfg.head == "lobes-flow":
+            raise ValueError(
+                f"{args.checkpoint}: the lobes-flow head is for training experiments; the "
+                "runtime evaluates the lobes head only, so it has no export"
+            )
         size = args.size_name or size_name(net.cfg)
         base_validation = _load_metrics(args.metrics)
         nets = networks_for(args, net, ckpt)

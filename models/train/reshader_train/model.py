@@ -32,8 +32,11 @@ NEG_SLOPE = 0.1
 # central differences). The network then has to learn smooth fields of geometry
 # (how far, which way) rather than their product with the image's edges.
 # Channels of the last conv per head: the residual, 3 x 3 Jacobian, and 6 shifts more.
-# "lobes" takes no camera: see LobeField. Its channels are per lobe, times NetConfig.lobes.
-HEAD_CHANNELS = {"residual": 3, "camera-linear": 9, "flow": 15, "lobes": 7}
+# "lobes" takes no camera: see LobeField. Its channels are per lobe, times NetConfig.lobes;
+# "lobes-flow" adds LOBE_FLOW_CHANNELS (see LobeField.flow).
+HEAD_CHANNELS = {"residual": 3, "camera-linear": 9, "flow": 15, "lobes": 7, "lobes-flow": 7}
+LOBE_HEADS = ("lobes", "lobes-flow")
+LOBE_FLOW_CHANNELS = 4
 HEADS = tuple(HEAD_CHANNELS)
 # Shifts are at most this many pixels per unit of (offset / CAMERA_SCALE).
 FLOW_MAX_PX = 4.0
@@ -70,11 +73,13 @@ class NetConfig:
     @property
     def out_channels(self) -> int:
         per = HEAD_CHANNELS[self.head]
+        if self.head == "lobes-flow":
+            return per * self.lobes + LOBE_FLOW_CHANNELS
         return per * self.lobes if self.head == "lobes" else per
 
     @property
     def takes_camera(self) -> bool:
-        return self.head != "lobes"
+        return self.head not in LOBE_HEADS
 
     def to_json(self) -> dict:
         return asdict(self)
@@ -337,9 +342,10 @@ def view_directions(disparity: torch.Tensor, rays: torch.Tensor, camera: torch.T
 class LobeField(nn.Module):
     """The decoder's raw channels -> lobes (B, 7K, H, W) in LOBE_LAYOUT order per lobe."""
 
-    def __init__(self, lobes: int) -> None:
+    def __init__(self, lobes: int, flow: bool = False) -> None:
         super().__init__()
         self.lobes = lobes
+        self.flow = flow
         lo, hi = (torch.log(torch.tensor(v)) for v in SHARPNESS_RANGE)
         self.register_buffer("log_sharpness", torch.stack([lo, hi]), persistent=False)
         # sigmoid(b) places the sharpness at SHARPNESS_INIT when the raw channel is 0.
@@ -356,7 +362,30 @@ class LobeField(nn.Module):
             mu = mu / torch.sqrt((mu * mu).sum(1, keepdim=True) + 1e-12)
             sharp = torch.exp(lo + (hi - lo) * torch.sigmoid(p[:, 3:4] + self.sharpness_bias))
             parts += [mu, sharp, AMPLITUDE_MAX * torch.tanh(p[:, 4:7])]
+        if self.flow:
+            parts.append(LOBE_FLOW_MAX * torch.tanh(raw[:, 7 * self.lobes :]))
         return torch.cat(parts, dim=1)
+
+
+# The "lobes-flow" head adds what a lobe cannot do alone: light that slides from one pixel
+# to the next. A lobe brightens a pixel only by the amplitude predicted for that pixel,
+# which for the pixels beside a highlight the network has to infer; a slide by s pixels
+# changes the image by about -grad(I) . s, which the photo's own gradient supplies. The
+# shift is a per-pixel 2x2 matrix (pixels per radian) times the change of the view
+# direction's x and y components, so it too is zero at the input camera and one network
+# run serves every view.
+LOBE_FLOW_MAX = 100.0
+
+
+def flow_change(
+    image: torch.Tensor, flow: torch.Tensor, w: torch.Tensor, w0: torch.Tensor
+) -> torch.Tensor:
+    """-grad(I) . (F (w - w0)_xy) for flow (B,4,H,W) = F_xx, F_xy, F_yx, F_yy per pixel."""
+    gx, gy = ImageGradient().to(image)(image)
+    dx, dy = (w - w0)[:, 0:1], (w - w0)[:, 1:2]
+    sx = flow[:, 0:1] * dx + flow[:, 1:2] * dy
+    sy = flow[:, 2:3] * dx + flow[:, 3:4] * dy
+    return -(gx * sx + gy * sy)
 
 
 def lobe_change(lobes: torch.Tensor, w: torch.Tensor, w0: torch.Tensor) -> torch.Tensor:
@@ -385,7 +414,11 @@ def shade_lobes(
     """The reshaded image for camera centres `camera` (B,3): what the runtime evaluates."""
     w = view_directions(disparity, rays, camera)
     w0 = view_directions(disparity, rays, torch.zeros_like(camera))
-    return image + shrink(lobe_change(lobes, w, w0), deadzone)
+    lobe_channels = lobes.shape[1] - lobes.shape[1] % 7
+    change = lobe_change(lobes[:, :lobe_channels], w, w0)
+    if lobe_channels < lobes.shape[1]:
+        change = change + flow_change(image, lobes[:, lobe_channels:], w, w0)
+    return image + shrink(change, deadzone)
 
 
 class ReshadeNet(nn.Module):
@@ -394,7 +427,9 @@ class ReshadeNet(nn.Module):
         self.cfg = cfg
         self.encoder = Encoder(cfg)
         self.decoder = Decoder(cfg)
-        self.lobe_field = LobeField(cfg.lobes) if cfg.head == "lobes" else None
+        self.lobe_field = (
+            LobeField(cfg.lobes, cfg.head == "lobes-flow") if cfg.head in LOBE_HEADS else None
+        )
         # He initialisation for LeakyReLU keeps activations from fading over the ~20 layers
         # between the camera features and the output (PyTorch's default init shrinks them,
         # and the camera's influence with them).

@@ -59,7 +59,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "last conv predicts the change per unit of camera offset, contracted with the offset), "
         "flow (camera-linear plus a predicted shift times the photo's gradient) or lobes (no "
         "camera input: per pixel --lobes spherical Gaussians whose change between the input "
-        "and the novel direction is added to the photo; one network run serves every view)",
+        "and the novel direction is added to the photo; one network run serves every view) or "
+        "lobes-flow (lobes plus the photo's gradient times a predicted shift per radian of view "
+        "direction change; training experiments only, not exported)",
     )
     p.add_argument("--lobes", type=int, default=2, help="lobes per pixel of the lobes head")
     p.add_argument(

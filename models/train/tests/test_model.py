@@ -6,6 +6,7 @@ import torch
 
 from reshader_train.model import (
     AMPLITUDE_MAX,
+    LOBE_FLOW_MAX,
     SHARPNESS_RANGE,
     SIZES,
     DecoderGraph,
@@ -283,3 +284,27 @@ def test_lobe_graph_is_the_networks_lobes():
     assert LobeGraph.input_names == ("image", "disparity", "rays")
     assert torch.equal(LobeGraph(net)(image, disp, rays), net.lobes(image, disp, rays))
     assert NetConfig.from_json(replace(TINY, head="lobes", lobes=3).to_json()).lobes == 3
+
+
+def test_lobes_flow_slides_a_ramp_by_the_shift_and_is_the_photo_at_the_input_camera():
+    net = ReshadeNet(replace(TINY, head="lobes-flow", lobes=1))
+    assert net.decoder.out.out_channels == 7 + 4
+    image = torch.linspace(0, 1, 64).expand(1, 3, 32, 64).clone()  # a ramp along x
+    disp = torch.full((1, 1, 32, 64), 0.125)
+    rays = centred_rays()
+    lobes = torch.zeros(1, 11, 32, 64)
+    lobes[:, 2] = -1.0
+    lobes[:, 3] = 1.0  # a wide lobe with no amplitude: the flow term alone
+    lobes[:, 7] = 50.0  # F_xx: 50 pixels per radian of x direction change
+    cam = torch.tensor([[0.2, 0.0, 0.0]])
+    w = view_directions(disp, rays, cam)
+    w0 = view_directions(disp, rays, torch.zeros(1, 3))
+    got = shade_lobes(image, lobes, disp, rays, cam)
+    slope = 1.0 / 63  # per pixel
+    expected = image - slope * 50.0 * (w - w0)[:, 0:1]
+    inner = (slice(None), slice(None), slice(1, -1), slice(1, -1))
+    assert torch.allclose(got[inner], expected[inner], atol=1e-5)
+    assert torch.equal(shade_lobes(image, lobes, disp, rays, torch.zeros(1, 3)), image)
+    with torch.no_grad():
+        out = net.lobes(*inputs(), rays)
+    assert out.shape[1] == 11 and float(out[:, 7:].abs().max()) <= LOBE_FLOW_MAX

@@ -18,6 +18,44 @@ pub const MAX_VIEWS: u32 = 256;
 /// Largest panel side accepted, in pixels (guards against typos like an extra zero).
 pub const MAX_PANEL_SIDE: u32 = 32_768;
 
+/// Lens and panel values outside these ranges are refused, naming the field: within
+/// them the lens phase stays exact in f64; beyond them a value is a typo (an exponent
+/// gone wrong), not a panel. Real units: pitch 40-90 lenses per inch, slope about ±6
+/// to ±8, DPI 280-500, lens pitch 4-20 subpixels.
+pub const PITCH_RANGE: (f64, f64) = (1e-3, 1e4);
+/// Magnitude of a Looking Glass slope (rows per pixel of lens shift).
+pub const SLOPE_RANGE: (f64, f64) = (1e-2, 1e4);
+/// Magnitude of a phase offset (Looking Glass `center`, van Berkel `offset`).
+pub const MAX_OFFSET: f64 = 1e6;
+pub const DPI_RANGE: (f64, f64) = (1.0, 1e5);
+/// van Berkel lens pitch, in subpixels.
+pub const LENS_PITCH_RANGE: (f64, f64) = (1e-2, 1e6);
+/// Magnitude of a van Berkel `tan_slant` (about 89.9 degrees).
+pub const MAX_TAN_SLANT: f64 = 1e3;
+
+/// The keys a Looking Glass `visual.json` may hold: those read here and those the
+/// runtime has no use for (serial, fringe, …). Any other key is refused with the
+/// nearest of these, so that a misspelt `invVeiw` cannot pass silently.
+pub const VISUAL_JSON_KEYS: &[&str] = &[
+    "configVersion",
+    "serial",
+    "pitch",
+    "slope",
+    "center",
+    "fringe",
+    "viewCone",
+    "invView",
+    "verticalAngle",
+    "DPI",
+    "screenW",
+    "screenH",
+    "flipImageX",
+    "flipImageY",
+    "flipSubp",
+    "CellPatternMode",
+    "subpixelCells",
+];
+
 /// Built-in boards, embedded at compile time from the workspace's `boards/` directory.
 const BUILTIN: &[(&str, &str)] = &[
     (
@@ -444,6 +482,24 @@ impl Board {
     }
 }
 
+/// Levenshtein distance in characters (keys are short).
+fn edit_distance(a: &str, b: &str) -> usize {
+    let b: Vec<char> = b.chars().collect();
+    let mut row: Vec<usize> = (0..=b.len()).collect();
+    for (i, ca) in a.chars().enumerate() {
+        let mut diagonal = row[0];
+        row[0] = i + 1;
+        for (j, &cb) in b.iter().enumerate() {
+            let above = row[j + 1];
+            row[j + 1] = (above + 1)
+                .min(row[j] + 1)
+                .min(diagonal + usize::from(ca != cb));
+            diagonal = above;
+        }
+    }
+    row[b.len()]
+}
+
 fn set_if<T: Copy>(slot: &mut T, value: Option<T>) {
     if let Some(v) = value {
         *slot = v;
@@ -499,6 +555,32 @@ impl Validator<'_> {
         self.check(value.is_finite(), field, "must be a finite number")
     }
 
+    /// `value` in [lo, hi].
+    fn within(&self, field: &str, value: f64, (lo, hi): (f64, f64)) -> Result<(), BoardError> {
+        self.check(
+            value.is_finite() && (lo..=hi).contains(&value),
+            field,
+            &format!("must be between {lo} and {hi}, got {value}"),
+        )
+    }
+
+    /// `|value|` in [lo, hi], either sign.
+    fn magnitude(&self, field: &str, value: f64, (lo, hi): (f64, f64)) -> Result<(), BoardError> {
+        self.check(
+            value.is_finite() && (lo..=hi).contains(&value.abs()),
+            field,
+            &format!("must be between {lo} and {hi} in magnitude (either sign), got {value}"),
+        )
+    }
+
+    fn offset(&self, field: &str, value: f64) -> Result<(), BoardError> {
+        self.check(
+            value.is_finite() && value.abs() <= MAX_OFFSET,
+            field,
+            &format!("must be between -{MAX_OFFSET} and {MAX_OFFSET}, got {value}"),
+        )
+    }
+
     fn view_size(&self, f: &BoardFile) -> Result<(u32, u32), BoardError> {
         match (f.view_width, f.view_height) {
             (Some(w), Some(h)) => {
@@ -548,14 +630,18 @@ impl Validator<'_> {
 
     fn looking_glass(&self, lg: &LookingGlass) -> Result<(), BoardError> {
         self.positive("looking_glass.pitch", lg.pitch)?;
+        self.within("looking_glass.pitch", lg.pitch, PITCH_RANGE)?;
         self.finite("looking_glass.slope", lg.slope)?;
         self.check(
             lg.slope != 0.0,
             "looking_glass.slope",
             "must not be 0 (that would be horizontal lenses)",
         )?;
+        self.magnitude("looking_glass.slope", lg.slope, SLOPE_RANGE)?;
         self.finite("looking_glass.center", lg.center)?;
-        self.positive("looking_glass.dpi", lg.dpi)
+        self.offset("looking_glass.center", lg.center)?;
+        self.positive("looking_glass.dpi", lg.dpi)?;
+        self.within("looking_glass.dpi", lg.dpi, DPI_RANGE)
     }
 
     fn van_berkel(&self, vb: &VanBerkel) -> Result<(), BoardError> {
@@ -577,10 +663,19 @@ impl Validator<'_> {
                 "van_berkel.slant_deg",
                 &format!("must be strictly between -90 and 90 degrees, got {deg}"),
             )?,
-            (None, Some(t)) => self.finite("van_berkel.tan_slant", t)?,
+            (None, Some(t)) => {
+                self.finite("van_berkel.tan_slant", t)?;
+                self.check(
+                    t.abs() <= MAX_TAN_SLANT,
+                    "van_berkel.tan_slant",
+                    &format!("must be between -{MAX_TAN_SLANT} and {MAX_TAN_SLANT}, got {t}"),
+                )?
+            }
         }
         self.positive("van_berkel.lens_pitch", vb.lens_pitch)?;
-        self.finite("van_berkel.offset", vb.offset)
+        self.within("van_berkel.lens_pitch", vb.lens_pitch, LENS_PITCH_RANGE)?;
+        self.finite("van_berkel.offset", vb.offset)?;
+        self.offset("van_berkel.offset", vb.offset)
     }
 }
 
@@ -604,7 +699,8 @@ fn default_view_size(f: &BoardFile) -> (u32, u32) {
 /// A unit's calibration in Looking Glass Factory's `visual.json` form.
 ///
 /// `pitch`, `slope` and `center` are required; the other fields override the board only
-/// when present. Fields this library does not use (serial, fringe, …) are ignored.
+/// when present. Keys this library does not use (serial, fringe, …) are ignored; a key that is
+/// not a visual.json key at all is refused (see [`VISUAL_JSON_KEYS`]).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Calibration {
     pub origin: String,
@@ -642,6 +738,7 @@ impl Calibration {
             message: "expected a JSON object of calibration fields".into(),
         })?;
         let reader = CalReader { origin, obj };
+        reader.known_keys()?;
         let cal = Calibration {
             origin: origin.to_string(),
             pitch: reader.required("pitch")?,
@@ -665,9 +762,13 @@ impl Calibration {
             origin: &self.origin,
         };
         v.positive("pitch", self.pitch)?;
+        v.within("pitch", self.pitch, PITCH_RANGE)?;
         v.check(self.slope != 0.0, "slope", "must not be 0")?;
+        v.magnitude("slope", self.slope, SLOPE_RANGE)?;
+        v.offset("center", self.center)?;
         if let Some(dpi) = self.dpi {
             v.positive("DPI", dpi)?;
+            v.within("DPI", dpi, DPI_RANGE)?;
         }
         if let Some(cone) = self.view_cone_deg {
             v.check(
@@ -693,6 +794,29 @@ impl CalReader<'_> {
             field: field.to_string(),
             reason: reason.to_string(),
         }
+    }
+
+    /// Refuses a key that is not a visual.json key, naming the nearest one.
+    fn known_keys(&self) -> Result<(), BoardError> {
+        for key in self.obj.keys() {
+            if VISUAL_JSON_KEYS.contains(&key.as_str()) {
+                continue;
+            }
+            let nearest = VISUAL_JSON_KEYS
+                .iter()
+                .map(|k| (edit_distance(&key.to_lowercase(), &k.to_lowercase()), *k))
+                .min()
+                .filter(|(d, _)| *d <= key.chars().count().max(3) / 2);
+            let reason = match nearest {
+                Some((_, k)) => format!("unknown key; did you mean `{k}`?"),
+                None => format!(
+                    "unknown key; a visual.json holds {}",
+                    VISUAL_JSON_KEYS.join(", ")
+                ),
+            };
+            return Err(self.err(key, reason));
+        }
+        Ok(())
     }
 
     fn raw(&self, field: &str) -> Result<Option<&serde_json::Value>, BoardError> {

@@ -348,3 +348,78 @@ fn calibration_only_applies_to_looking_glass_boards() {
     assert!(err.contains("visual.json"), "{err}");
     assert!(err.contains("generic-8view"), "{err}");
 }
+
+#[test]
+fn absurd_calibration_values_are_refused_by_name() {
+    let base = |field: &str, value: &str| {
+        let mut fields = vec![
+            ("pitch", "52"),
+            ("slope", "-7"),
+            ("center", "0.5"),
+            ("DPI", "324"),
+        ];
+        for f in &mut fields {
+            if f.0 == field {
+                f.1 = value;
+            }
+        }
+        let body: Vec<String> = fields
+            .iter()
+            .map(|(k, v)| format!("\"{k}\": {{\"value\": {v}}}"))
+            .collect();
+        format!("{{{}}}", body.join(", "))
+    };
+    for (field, value) in [
+        ("pitch", "1e300"),
+        ("pitch", "1e-300"),
+        ("slope", "1e-300"),
+        ("slope", "-1e300"),
+        ("center", "1e300"),
+        ("DPI", "1e300"),
+    ] {
+        let err = Calibration::from_json_str(&base(field, value), "unit/visual.json")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains(&format!("field `{field}`: must be between")),
+            "{field} = {value}: {err}"
+        );
+    }
+    assert!(Calibration::from_json_str(&base("slope", "6.3"), "v.json").is_ok());
+    // The same bounds hold in a board file.
+    let err = error_for(&GOOD.replace("pitch = 52.0", "pitch = 1e300"));
+    assert!(
+        err.contains("field `looking_glass.pitch`: must be between"),
+        "{err}"
+    );
+    let err = error_for(&GOOD.replace("slope = -7.0", "slope = -1e-300"));
+    assert!(err.contains("looking_glass.slope"), "{err}");
+}
+
+#[test]
+fn unknown_calibration_keys_are_refused_with_the_nearest_known_one() {
+    let with = |extra: &str| format!(r#"{{"pitch": 52, "slope": -7, "center": 0.5, {extra}}}"#);
+    let err = Calibration::from_json_str(&with(r#""invVeiw": {"value": 1}"#), "unit/visual.json")
+        .unwrap_err()
+        .to_string();
+    assert!(err.starts_with("unit/visual.json:"), "{err}");
+    assert!(
+        err.contains("field `invVeiw`: unknown key; did you mean `invView`?"),
+        "{err}"
+    );
+    let err = Calibration::from_json_str(&with(r#""dpi": 324"#), "v.json")
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("did you mean `DPI`?"), "{err}");
+    let err = Calibration::from_json_str(&with(r#""zzzzzzzzzzzzzz": 1"#), "v.json")
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("a visual.json holds configVersion"), "{err}");
+    // Every key of a unit's file, used or not, is known.
+    assert!(Calibration::from_json_str(VISUAL_JSON, "visual.json").is_ok());
+    assert!(Calibration::from_json_str(
+        &with(r#""CellPatternMode": {"value": 0}, "subpixelCells": []"#),
+        "v.json"
+    )
+    .is_ok());
+}

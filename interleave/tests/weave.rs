@@ -244,3 +244,67 @@ proptest! {
         prop_assert_eq!(back, views);
     }
 }
+
+/// A random board as TOML: any panel and view sizes, view counts and lens values
+/// within (and now and then beyond) the accepted ranges, in each lens form.
+fn random_board_text(
+    (w, h, views): (u32, u32, u32),
+    (vw, vh): (u32, u32),
+    lens: u8,
+    (a, b, c): (f64, f64, f64),
+) -> String {
+    let cols = (f64::from(views).sqrt().ceil() as u32).max(1);
+    let rows = views.div_ceil(cols);
+    let mut text = format!(
+        "name = \"random\"\nwidth = {w}\nheight = {h}\nviews = {views}\n\
+         quilt_cols = {cols}\nquilt_rows = {rows}\nview_width = {vw}\nview_height = {vh}\n\
+         view_cone_deg = 40.0\n"
+    );
+    match lens {
+        0 => text += &format!(
+            "[looking_glass]\npitch = {a:e}\nslope = {b:e}\ncenter = {c:e}\ninv_view = true\ndpi = 324.0\n"
+        ),
+        1 => text += &format!("[van_berkel]\ntan_slant = {b:e}\nlens_pitch = {a:e}\noffset = {c:e}\n"),
+        _ => text += "[side_by_side]\n",
+    }
+    text
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(96))]
+
+    /// Any board either is refused with an error or weaves views of any size into a
+    /// panel of its own size, with every subpixel taken from an existing view; never a
+    /// panic.
+    #[test]
+    fn any_board_weaves_or_is_refused(
+        w in 1u32..48, h in 1u32..48, views in 1u32..300,
+        vw in 1u32..24, vh in 1u32..24,
+        lens in 0u8..3,
+        a_exp in -310.0f64..310.0, b_exp in -310.0f64..310.0, c_exp in -310.0f64..310.0,
+        signs in 0u8..8, linear in any::<bool>(),
+    ) {
+        let sign = |bit: u8| if signs & bit != 0 { -1.0 } else { 1.0 };
+        let (a, b, c) = (
+            sign(1) * 10f64.powf(a_exp / 30.0),
+            sign(2) * 10f64.powf(b_exp / 30.0),
+            sign(4) * 10f64.powf(c_exp / 30.0),
+        );
+        let views = if lens == 2 { 2 } else { views };
+        let text = random_board_text((w, h, views), (vw, vh), lens, (a, b, c));
+        let Ok(board) = Board::from_toml_str(&text, "random.toml") else {
+            return Ok(());
+        };
+        let n = board.views();
+        let images = coordinate_views(n, vw, vh);
+        let blend = if linear { Blend::Linear } else { Blend::Nearest };
+        let panel = Weaver::new(&board, vw, vh, blend).weave(&images).unwrap();
+        prop_assert_eq!(panel.dimensions(), (w, h));
+        for px in panel.pixels() {
+            prop_assert!((px[2] as usize) < n.max(1));
+        }
+        let (cols, rows) = board.quilt_grid();
+        let quilt = make_quilt(&images, cols, rows).unwrap();
+        prop_assert_eq!(quilt.dimensions(), (vw * cols, vh * rows));
+    }
+}

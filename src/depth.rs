@@ -31,6 +31,10 @@ pub const PNG_UNITS_PER_VALUE: f32 = 0.001;
 /// enough for maps whose sides were rounded to multiples of 32.
 pub const ASPECT_TOLERANCE: f64 = 0.05;
 const MAX_SIDE: usize = 1 << 15;
+/// Depth files may use any unit, but their values and inverses must stay well inside
+/// f32's normal range, where resampling in disparity is exact enough.
+pub const MIN_FILE_DEPTH: f32 = 1e-32;
+pub const MAX_FILE_DEPTH: f32 = 1e32;
 
 #[derive(Debug, thiserror::Error)]
 pub enum DepthError {
@@ -81,6 +85,17 @@ pub enum DepthError {
     NonPositive {
         path: PathBuf,
         count: usize,
+        x: usize,
+        y: usize,
+    },
+    #[error(
+        "depth map {path} has {count} values outside {MIN_FILE_DEPTH:e} to {MAX_FILE_DEPTH:e} \
+         units (first {value:e} at x={x}, y={y}); rescale it to a unit nearer the scene's"
+    )]
+    OutOfRange {
+        path: PathBuf,
+        count: usize,
+        value: f32,
         x: usize,
         y: usize,
     },
@@ -217,6 +232,18 @@ impl DepthMap {
             return Err(DepthError::NonPositive {
                 path: path.into(),
                 count: bad.len(),
+                x: first % raw.width,
+                y: first / raw.width,
+            });
+        }
+        let outside: Vec<usize> = (0..raw.values.len())
+            .filter(|&i| !(MIN_FILE_DEPTH..=MAX_FILE_DEPTH).contains(&raw.values[i]))
+            .collect();
+        if let Some(&first) = outside.first() {
+            return Err(DepthError::OutOfRange {
+                path: path.into(),
+                count: outside.len(),
+                value: raw.values[first],
                 x: first % raw.width,
                 y: first / raw.width,
             });

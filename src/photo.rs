@@ -48,6 +48,15 @@ pub enum PhotoError {
     TooLarge { path: PathBuf, source: TooLarge },
     #[error("field of view {0}° is outside (0°, 180°)")]
     BadFov(f64),
+    #[error(
+        "photo {path} is truncated: {detail} after {len} bytes (was it still being \
+         written or cut short in a transfer?)"
+    )]
+    Truncated {
+        path: PathBuf,
+        len: usize,
+        detail: &'static str,
+    },
 }
 
 /// RGB image whose values are sRGB-encoded (not linear) in [0, 1]: the colour space the
@@ -251,13 +260,81 @@ fn decode(
     // Sides are checked below, with a message that gives them; the limit left here holds
     // the decoders' own buffers to the input budget.
     reader.limits(limits::image_limits(u32::MAX));
+    let jpeg = reader.format() == Some(ImageFormat::Jpeg);
     let mut decoder = reader.into_decoder().map_err(decode_err)?;
     check_size(path, decoder.dimensions(), decoder.total_bytes())?;
     let orientation = decoder
         .orientation()
         .unwrap_or(image::metadata::Orientation::NoTransforms);
     let image = DynamicImage::from_decoder(decoder).map_err(decode_err)?;
+    // Checked after decoding, so that garbage gets the decoder's own message.
+    if jpeg {
+        jpeg_complete(bytes).map_err(|detail| PhotoError::Truncated {
+            path: path.into(),
+            len: bytes.len(),
+            detail,
+        })?;
+    }
     Ok((image, orientation))
+}
+
+/// Whether a JPEG's segments and scans run to its end-of-image marker. The JPEG
+/// decoder fills whatever a cut-off file lacks with grey and reports success, so a photo
+/// copied while still being written would otherwise convert into a half-grey frame.
+/// Walks the marker segments by their lengths (so thumbnails inside APP segments do
+/// not count) and the entropy-coded data of each scan to the next marker.
+pub fn jpeg_complete(bytes: &[u8]) -> Result<(), &'static str> {
+    const ENDS: &str = "the JPEG data ends before its end-of-image marker";
+    if !bytes.starts_with(&[0xFF, 0xD8]) {
+        return Ok(());
+    }
+    let mut i = 2;
+    loop {
+        // A marker: 0xFF (fill bytes may repeat it), then its code; stray bytes before
+        // it are skipped, as libjpeg does.
+        match bytes[i.min(bytes.len())..].iter().position(|&b| b == 0xFF) {
+            Some(k) => i += k,
+            None => return Err(ENDS),
+        }
+        while bytes.get(i + 1) == Some(&0xFF) {
+            i += 1;
+        }
+        let Some(&code) = bytes.get(i + 1) else {
+            return Err(ENDS);
+        };
+        i += 2;
+        match code {
+            0xD9 => return Ok(()),
+            0x01 | 0xD0..=0xD7 => continue,
+            _ => {}
+        }
+        let len = match (bytes.get(i), bytes.get(i + 1)) {
+            (Some(&hi), Some(&lo)) => usize::from(u16::from_be_bytes([hi, lo])),
+            _ => return Err(ENDS),
+        };
+        if len < 2 {
+            return Err("a JPEG segment has an impossible length");
+        }
+        i += len;
+        if i > bytes.len() {
+            return Err(ENDS);
+        }
+        if code == 0xDA {
+            // Entropy-coded data: up to the next marker that is not a stuffed 0xFF00 or
+            // a restart marker.
+            loop {
+                match bytes[i..].iter().position(|&b| b == 0xFF) {
+                    None => return Err(ENDS),
+                    Some(k) => i += k,
+                }
+                match bytes.get(i + 1) {
+                    None => return Err(ENDS),
+                    Some(0x00 | 0xD0..=0xD7 | 0xFF) => i += 1,
+                    Some(_) => break,
+                }
+            }
+        }
+    }
 }
 
 /// Refuses a photo by its header before the decoder allocates its pixels (`image` does
@@ -375,6 +452,49 @@ mod tests {
         // The patched file is otherwise valid: with a true size it decodes.
         std::fs::write(&path, png_claiming(1, 1)).unwrap();
         assert!(Photo::load(&path, None).is_ok());
+    }
+
+    fn encoded(format: image::ImageFormat) -> Vec<u8> {
+        let img = RgbImage::from_fn(96, 64, |x, y| {
+            image::Rgb([x as u8 * 2, y as u8 * 3, ((x * 7 + y * 13) % 256) as u8])
+        });
+        let mut bytes = Vec::new();
+        img.write_to(&mut std::io::Cursor::new(&mut bytes), format)
+            .unwrap();
+        bytes
+    }
+
+    #[test]
+    fn a_jpeg_cut_anywhere_is_refused_as_truncated() {
+        let jpeg = encoded(image::ImageFormat::Jpeg);
+        assert_eq!(jpeg_complete(&jpeg), Ok(()));
+        // Bytes after the end-of-image marker (phone trailers) are fine.
+        let mut trailer = jpeg.clone();
+        trailer.extend_from_slice(b"SAMSUNG TRAILER \xff\xd8");
+        assert_eq!(jpeg_complete(&trailer), Ok(()));
+        for cut in 2..jpeg.len() - 1 {
+            assert!(jpeg_complete(&jpeg[..cut]).is_err(), "cut at {cut}");
+            let err = decode_rgb8(Path::new("half.jpg"), &jpeg[..cut]).unwrap_err();
+            let text = err.to_string();
+            assert!(
+                text.contains("half.jpg")
+                    && (text.contains("truncated") || text.contains("decode")),
+                "cut at {cut}: {text}"
+            );
+        }
+        let half = decode_rgb8(Path::new("half.jpg"), &jpeg[..jpeg.len() / 2]).unwrap_err();
+        assert!(matches!(half, PhotoError::Truncated { .. }), "{half}");
+    }
+
+    #[test]
+    fn a_png_cut_in_its_pixels_is_refused() {
+        let png = encoded(image::ImageFormat::Png);
+        assert!(decode_rgb8(Path::new("p.png"), &png).is_ok());
+        // Cut anywhere before the end of the image data (IEND, 12 bytes, may go).
+        for cut in 1..png.len() - 12 {
+            let err = decode_rgb8(Path::new("p.png"), &png[..cut]);
+            assert!(err.is_err(), "a PNG cut at {cut} of {} decoded", png.len());
+        }
     }
 
     #[test]

@@ -13,12 +13,54 @@ pub enum ViewError {
     NoViews,
     #[error("view cone {0}° is outside [0°, 180°)")]
     Cone(f64),
-    #[error("--depthiness {0} must be a finite number >= 0")]
+    #[error("--depthiness {0} must be a finite number from 0 to {MAX_DEPTHINESS} (1 spans the board's view cone)")]
     Depthiness(f64),
     #[error("focus depth {0} must be a finite number > 0")]
     Focus(f64),
-    #[error("camera {centre:?} is at or beyond the zero-parallax plane z = {focus}")]
+    #[error("camera {} is at or beyond the zero-parallax plane z = {focus}", Xyz(*.centre))]
     BeyondFocus { centre: [f64; 3], focus: f64 },
+    #[error(
+        "camera {} is {distance:e} units from the photo's camera, more than \
+         {MAX_CAMERA_DISTANCE} times the zero-parallax depth {focus}: a view from there \
+         shows nothing of the scene",
+        Xyz(*.centre)
+    )]
+    FarCamera {
+        centre: [f64; 3],
+        distance: f64,
+        focus: f64,
+    },
+}
+
+/// The largest `--depthiness`: ten times the baseline that spans the board's view cone.
+pub const MAX_DEPTHINESS: f64 = 10.0;
+/// The farthest a view's camera may be from the photo's, in zero-parallax depths.
+pub const MAX_CAMERA_DISTANCE: f64 = 1e4;
+
+/// A camera position as `(x, y, z)` for messages.
+struct Xyz([f64; 3]);
+
+impl std::fmt::Display for Xyz {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let short = |v: f64| {
+            if v != 0.0 && !(1e-4..1e6).contains(&v.abs()) {
+                format!("{v:e}")
+            } else {
+                format!("{v}")
+            }
+        };
+        let [x, y, z] = self.0.map(short);
+        write!(f, "({x}, {y}, {z})")
+    }
+}
+
+/// Checks a `--depthiness` before any work (see [`ViewRig::new`]).
+pub fn check_depthiness(depthiness: f64) -> Result<(), ViewError> {
+    if depthiness.is_finite() && (0.0..=MAX_DEPTHINESS).contains(&depthiness) {
+        Ok(())
+    } else {
+        Err(ViewError::Depthiness(depthiness))
+    }
 }
 
 /// Pinhole intrinsics in pixels. Pixel (i, j) covers [i, i+1) × [j, j+1); its centre is
@@ -100,6 +142,14 @@ impl ViewCamera {
         if centre[2] >= focus {
             return Err(ViewError::BeyondFocus { centre, focus });
         }
+        let distance = centre[0].hypot(centre[1]).hypot(centre[2]);
+        if distance.is_nan() || distance > MAX_CAMERA_DISTANCE * focus {
+            return Err(ViewError::FarCamera {
+                centre,
+                distance,
+                focus,
+            });
+        }
         let zoom = (focus - centre[2]) / focus;
         Ok(Self {
             centre,
@@ -153,9 +203,7 @@ impl ViewRig {
         if !(cone_deg.is_finite() && (0.0..180.0).contains(&cone_deg)) {
             return Err(ViewError::Cone(cone_deg));
         }
-        if !(depthiness.is_finite() && depthiness >= 0.0) {
-            return Err(ViewError::Depthiness(depthiness));
-        }
+        check_depthiness(depthiness)?;
         if !(focus.is_finite() && focus > 0.0) {
             return Err(ViewError::Focus(focus));
         }

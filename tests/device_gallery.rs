@@ -493,6 +493,19 @@ fn watch_converts_photos_as_they_appear_and_survives_a_restart() {
     drop(file);
     assert_eq!(next_report(&lines), ("c.jpg".into(), "converted".into()));
 
+    // A writer that closes the file half-written and comes back later to finish it (a
+    // sync tool writing in pieces): the closed half is cut off before its end-of-image
+    // marker, so the watcher waits for the rest instead of converting (or failing) it.
+    let f = inbox.join("f.jpg");
+    write_depth(&f);
+    let bytes = photo_bytes(6);
+    std::fs::write(&f, &bytes[..bytes.len() / 2]).unwrap();
+    std::thread::sleep(Duration::from_millis(1500));
+    let mut file = std::fs::OpenOptions::new().append(true).open(&f).unwrap();
+    file.write_all(&bytes[bytes.len() / 2..]).unwrap();
+    drop(file);
+    assert_eq!(next_report(&lines), ("f.jpg".into(), "converted".into()));
+
     // A corrupt photo fails alone; the watcher carries on with the next.
     let d = inbox.join("d.jpg");
     write_depth(&d);
@@ -509,10 +522,10 @@ fn watch_converts_photos_as_they_appear_and_survives_a_restart() {
 
     let stderr = terminate(child);
     assert!(
-        stderr.contains("stopped: 4 converted, 0 skipped, 1 failed"),
+        stderr.contains("stopped: 5 converted, 0 skipped, 1 failed"),
         "{stderr}"
     );
-    for name in ["a", "b", "c", "e"] {
+    for name in ["a", "b", "c", "e", "f"] {
         assert!(out.join(name).join("panel.png").is_file(), "{name}");
     }
     assert!(leftovers(&out).is_empty(), "{:?}", leftovers(&out));
@@ -520,7 +533,7 @@ fn watch_converts_photos_as_they_appear_and_survives_a_restart() {
     // Restarted (polling this time): finished photos are skipped, not redone.
     let mut child = spawn_watch(&inbox, &board, &out, &["--poll"]);
     let lines = line_reader(&mut child);
-    let mut seen: Vec<(String, String)> = (0..5).map(|_| next_report(&lines)).collect();
+    let mut seen: Vec<(String, String)> = (0..6).map(|_| next_report(&lines)).collect();
     seen.sort();
     let expect = |n: &str, s: &str| (n.to_string(), s.to_string());
     assert_eq!(
@@ -531,11 +544,12 @@ fn watch_converts_photos_as_they_appear_and_survives_a_restart() {
             expect("c.jpg", "skipped"),
             expect("d.jpg", "failed"),
             expect("e.png", "skipped"),
+            expect("f.jpg", "skipped"),
         ]
     );
     let stderr = terminate(child);
     assert!(
-        stderr.contains("stopped: 0 converted, 4 skipped, 1 failed"),
+        stderr.contains("stopped: 0 converted, 5 skipped, 1 failed"),
         "{stderr}"
     );
 }

@@ -332,3 +332,138 @@ fn model_directory_without_the_default_int8_says_which_precisions_it_has() {
         ],
     );
 }
+
+/// Issue 26: a JPEG cut in half decoded with grey in its lower half and rendered with
+/// exit 0; the decoder's silence is no longer trusted.
+#[test]
+fn truncated_jpeg_is_an_error_naming_the_photo() {
+    let case = Case::new();
+    // Large enough that half of it ends inside the image data, not in a header.
+    let big = image::imageops::resize(
+        &scene_photo(),
+        PHOTO_W * 10,
+        PHOTO_H * 10,
+        image::imageops::FilterType::Nearest,
+    );
+    let mut jpeg = Vec::new();
+    big.write_to(
+        &mut std::io::Cursor::new(&mut jpeg),
+        image::ImageFormat::Jpeg,
+    )
+    .unwrap();
+    let half = bad_file(&case.path("bad-half.jpg"), &jpeg[..jpeg.len() / 2]);
+    let result = case.render(&half, &case.depth, &[]);
+    case.assert_failed_cleanly(&result, &["bad-half.jpg", "truncated"]);
+}
+
+/// Issue 26: absurd options panicked in the LDI renderer (index out of bounds, exit
+/// 101); now they are refused with a message, and any depth scale renders.
+#[test]
+fn absurd_depthiness_and_cameras_are_refused() {
+    let case = Case::new();
+    let result = case.render(&case.photo, &case.depth, &["--depthiness", "1e5"]);
+    case.assert_failed_cleanly(&result, &["--depthiness 100000", "from 0 to 10"]);
+    let out = case.path("view.png");
+    for camera in ["1e30,0,0", "0,-1e300,0", "0,0,-1e30"] {
+        let result = run(&[
+            "view",
+            &case.photo,
+            "--depth",
+            &case.depth,
+            "--camera",
+            camera,
+            "--out",
+            &out,
+        ]);
+        case.assert_failed_cleanly(&result, &["times the zero-parallax depth"]);
+    }
+}
+
+#[test]
+fn any_depth_scale_and_any_allowed_camera_render() {
+    let case = Case::new();
+    for scale in [1e7f32, 1e-7, 1e30, 1e-30] {
+        let scaled = case.path(&format!("depth-{scale:e}.npy"));
+        let data: Vec<f32> = scene_depth().iter().map(|d| d * scale).collect();
+        write_npy(
+            Path::new(&scaled),
+            PHOTO_H as usize,
+            PHOTO_W as usize,
+            &data,
+        );
+        let result = case.render(&case.photo, &scaled, &["--only", "panel"]);
+        assert_eq!(
+            result.status.code(),
+            Some(0),
+            "depth x{scale:e}: {}",
+            stderr(&result)
+        );
+        let result = case.render(
+            &case.photo,
+            &scaled,
+            &["--only", "panel", "--depthiness", "10"],
+        );
+        assert_eq!(result.status.code(), Some(0), "{}", stderr(&result));
+    }
+    // Beyond what f32 resamples exactly: refused, naming the file and a value.
+    let tiny = case.path("bad-tiny.npy");
+    let data: Vec<f32> = scene_depth().iter().map(|d| d * 1e-36).collect();
+    write_npy(Path::new(&tiny), PHOTO_H as usize, PHOTO_W as usize, &data);
+    let result = case.render(&case.photo, &tiny, &["--only", "panel"]);
+    assert_eq!(result.status.code(), Some(1), "{}", stderr(&result));
+    assert!(
+        stderr(&result).contains("bad-tiny.npy has 384 values outside 1e-32 to 1e32"),
+        "{}",
+        stderr(&result)
+    );
+    // Within the limit but far off to the side or behind: the view sees little or
+    // nothing of the scene, and is still an image.
+    for camera in ["5000,0,0", "0,0,-20000", "-3,2,1"] {
+        let out = case.path("view.png");
+        let result = run(&[
+            "view",
+            &case.photo,
+            "--depth",
+            &case.depth,
+            "--camera",
+            camera,
+            "--out",
+            &out,
+        ]);
+        assert_eq!(
+            result.status.code(),
+            Some(0),
+            "{camera}: {}",
+            stderr(&result)
+        );
+        assert_eq!(load(Path::new(&out)).dimensions(), (PHOTO_W, PHOTO_H));
+    }
+}
+
+/// Issue 26: a misspelt key and absurd values in a visual.json passed silently.
+#[test]
+fn calibration_with_a_misspelt_key_or_absurd_values() {
+    let case = Case::new();
+    let cases: [(&str, &str, &[&str]); 3] = [
+        (
+            "bad-typo.json",
+            r#"{"pitch": 38, "slope": -7, "center": 0.5, "invVeiw": {"value": 1}}"#,
+            &["bad-typo.json", "invVeiw", "did you mean `invView`"],
+        ),
+        (
+            "bad-pitch.json",
+            r#"{"pitch": 1e300, "slope": -7, "center": 0.5}"#,
+            &["bad-pitch.json", "field `pitch`: must be between"],
+        ),
+        (
+            "bad-slope.json",
+            r#"{"pitch": 38, "slope": 1e-300, "center": 0.5}"#,
+            &["bad-slope.json", "field `slope`"],
+        ),
+    ];
+    for (name, json, needles) in cases {
+        let bad = bad_file(&case.path(name), json.as_bytes());
+        let result = case.render(&case.photo, &case.depth, &["--calibration", &bad]);
+        case.assert_failed_cleanly(&result, needles);
+    }
+}

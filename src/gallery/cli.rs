@@ -28,7 +28,7 @@ pub(crate) const DEPTH_SIDECARS: &[(&str, DepthKind)] = &[
     ("_depth", DepthKind::Depth),
     ("_disparity", DepthKind::Disparity),
 ];
-const DEPTH_EXTENSIONS: &[&str] = &["npy", "png", "pfm", "exr"];
+pub(crate) const DEPTH_EXTENSIONS: &[&str] = &["npy", "png", "pfm", "exr"];
 
 #[derive(Debug, thiserror::Error)]
 pub enum GalleryError {

@@ -2,11 +2,16 @@
 //!
 //! inotify wakes the loop and says which file changed; a periodic rescan of the folder
 //! backs it up (missed events, queue overflow) and is the whole mechanism where inotify
-//! is unavailable. A file is converted once it is complete: closed after writing or moved
-//! into the folder (inotify), or unchanged in size and mtime for the settle time. A file
-//! inotify saw being written waits for its close, however long the writer pauses, up to
-//! [`OPEN_WRITER_LIMIT`] settle times (a lost close event must not block it forever). The
-//! done-markers make a restart skip what an earlier run finished.
+//! is unavailable. A file is converted once it is complete: unchanged in size and mtime
+//! across two polls, and closed after writing or moved into the folder (inotify) or
+//! unchanged for the settle time; and its content must be whole (a JPEG up to its
+//! end-of-image marker, a PNG up to IEND), since a writer may close a file it has not
+//! finished (a sync tool writing in pieces, an interrupted copy). A file inotify saw
+//! being written, or one whose content is cut off, waits, however long the writer
+//! pauses, up to [`OPEN_WRITER_LIMIT`] settle times (a lost close event must not block
+//! it forever; a file still cut off then fails as truncated). A new or changed depth
+//! sidecar (`NAME_depth.png`, …) sends its photo round again. The done-markers make a
+//! restart skip what an earlier run finished.
 
 use std::collections::HashMap;
 use std::os::fd::AsRawFd;
@@ -70,7 +75,26 @@ struct Candidate {
     signature: Signature,
     changed_at: Instant,
     state: WriteState,
+    /// Polls that found the file with this signature.
+    polls: u32,
+    /// Whether the content is whole, once checked for this signature.
+    whole: Option<bool>,
 }
+
+impl Candidate {
+    fn new(signature: Signature, state: WriteState) -> Self {
+        Self {
+            signature,
+            changed_at: Instant::now(),
+            state,
+            polls: 0,
+            whole: None,
+        }
+    }
+}
+
+/// Polls that must find a file unchanged before it counts as complete.
+const STABLE_POLLS: u32 = 2;
 
 /// What inotify said about a file since its last change.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -81,6 +105,22 @@ pub enum WriteState {
     Writing,
     /// Closed after writing, or moved into the folder: complete.
     Closed,
+}
+
+/// The stem of the photo whose depth sidecar `path` is (`a_depth.npy` → `a`).
+fn sidecar_of(path: &Path) -> Option<String> {
+    let name = path.file_name()?.to_str()?;
+    let (stem, ext) = name.rsplit_once('.')?;
+    if name.starts_with('.')
+        || !super::cli::DEPTH_EXTENSIONS.contains(&ext.to_ascii_lowercase().as_str())
+    {
+        return None;
+    }
+    super::cli::DEPTH_SIDECARS
+        .iter()
+        .find_map(|(suffix, _)| stem.strip_suffix(suffix))
+        .filter(|s| !s.is_empty())
+        .map(str::to_string)
 }
 
 /// Whether `path` is a photo the watcher should convert: a visible jpg/jpeg/png that is
@@ -158,10 +198,16 @@ struct State {
     pending: HashMap<PathBuf, Candidate>,
     /// The signature each file had when it was last converted, skipped or failed.
     done: HashMap<PathBuf, Signature>,
+    /// The signature each depth sidecar had when last seen.
+    sidecars: HashMap<PathBuf, Signature>,
 }
 
 impl State {
     fn note(&mut self, path: &Path, event: WriteState) {
+        if let Some(stem) = sidecar_of(path) {
+            self.note_sidecar(path, &stem);
+            return;
+        }
         if !is_watched_photo(path) {
             return;
         }
@@ -185,15 +231,41 @@ impl State {
                     (WriteState::Unknown, Some(WriteState::Writing)) => WriteState::Writing,
                     _ => event,
                 };
-                self.pending.insert(
-                    path.into(),
-                    Candidate {
-                        signature,
-                        changed_at: Instant::now(),
-                        state,
-                    },
-                );
+                self.pending
+                    .insert(path.into(), Candidate::new(signature, state));
             }
+        }
+    }
+
+    /// A new or changed depth sidecar: its photos are converted again (the done-marker
+    /// holds the sidecar's hash), once the sidecar too has settled.
+    fn note_sidecar(&mut self, sidecar: &Path, stem: &str) {
+        let signature = signature(sidecar);
+        let changed = match signature {
+            Some(sig) => self.sidecars.insert(sidecar.into(), sig) != Some(sig),
+            None => self.sidecars.remove(sidecar).is_some(),
+        };
+        if !changed {
+            return;
+        }
+        let Some(dir) = sidecar.parent() else {
+            return;
+        };
+        let Ok(entries) = std::fs::read_dir(dir) else {
+            return;
+        };
+        for entry in entries.flatten() {
+            let photo = entry.path();
+            let same_stem = photo.file_stem().and_then(|s| s.to_str()) == Some(stem);
+            if !same_stem || !is_watched_photo(&photo) {
+                continue;
+            }
+            let Some(photo_signature) = self::signature(&photo) else {
+                continue;
+            };
+            self.done.remove(&photo);
+            self.pending
+                .insert(photo, Candidate::new(photo_signature, WriteState::Unknown));
         }
     }
 
@@ -217,22 +289,34 @@ impl State {
         self.pending.retain(|path, c| match signature(path) {
             None => false,
             Some(now) if now != c.signature => {
-                c.signature = now;
-                c.changed_at = Instant::now();
-                if c.state == WriteState::Closed {
-                    c.state = WriteState::Unknown;
-                }
+                let state = if c.state == WriteState::Closed {
+                    WriteState::Unknown
+                } else {
+                    c.state
+                };
+                *c = Candidate::new(now, state);
                 true
             }
             Some(_) => {
+                c.polls = c.polls.saturating_add(1);
                 let quiet = c.changed_at.elapsed();
-                let complete = match c.state {
-                    WriteState::Closed => c.signature.0 > 0 || quiet >= settle,
-                    WriteState::Unknown => quiet >= settle,
-                    WriteState::Writing => quiet >= settle * OPEN_WRITER_LIMIT,
-                };
-                if complete {
-                    ready.push(path.clone());
+                let patience = settle * OPEN_WRITER_LIMIT;
+                let stable = c.polls >= STABLE_POLLS
+                    && match c.state {
+                        WriteState::Closed => c.signature.0 > 0 || quiet >= settle,
+                        WriteState::Unknown => quiet >= settle,
+                        WriteState::Writing => quiet >= patience,
+                    };
+                if stable {
+                    let whole = *c.whole.get_or_insert_with(|| content_whole(path));
+                    if whole || quiet >= patience {
+                        ready.push(path.clone());
+                    } else if c.polls == STABLE_POLLS {
+                        log::info!(
+                            "{} is closed but cut off; waiting for the rest of it",
+                            path.display()
+                        );
+                    }
                 }
                 true
             }
@@ -246,6 +330,37 @@ impl State {
             self.done.insert(path.into(), c.signature);
         }
     }
+}
+
+/// Whether a photo file's content runs to its end: a JPEG to its end-of-image marker,
+/// a PNG to its IEND chunk. Other content (and a file too large to read) counts as
+/// whole: the conversion reports what is wrong with it.
+fn content_whole(path: &Path) -> bool {
+    let Ok(bytes) = crate::limits::read_input(path) else {
+        return true;
+    };
+    if bytes.starts_with(&[0xFF, 0xD8]) {
+        return crate::photo::jpeg_complete(&bytes).is_ok();
+    }
+    if let Some(chunks) = bytes.strip_prefix(b"\x89PNG\r\n\x1a\n".as_slice()) {
+        return png_has_iend(chunks);
+    }
+    true
+}
+
+/// Walks PNG chunks (length, type, data, CRC) to an IEND chunk.
+fn png_has_iend(mut chunks: &[u8]) -> bool {
+    while chunks.len() >= 12 {
+        let len = u32::from_be_bytes([chunks[0], chunks[1], chunks[2], chunks[3]]) as usize;
+        if &chunks[4..8] == b"IEND" {
+            return true;
+        }
+        let Some(rest) = chunks.get(len.saturating_add(12)..) else {
+            return false;
+        };
+        chunks = rest;
+    }
+    false
 }
 
 fn signature(path: &Path) -> Option<Signature> {
@@ -382,6 +497,10 @@ mod tests {
             state.ready(Duration::ZERO).is_empty(),
             "a change restarts the settle time"
         );
+        assert!(
+            state.ready(Duration::ZERO).is_empty(),
+            "one poll does not show the size is stable"
+        );
         assert_eq!(state.ready(Duration::ZERO), std::slice::from_ref(&photo));
         state.handled(&photo);
         state.note(&photo, WriteState::Closed);
@@ -391,6 +510,7 @@ mod tests {
         );
         std::fs::write(&photo, b"edited").unwrap();
         state.note(&photo, WriteState::Closed);
+        assert!(state.ready(hour).is_empty());
         assert_eq!(
             state.ready(hour),
             [photo],
@@ -417,12 +537,77 @@ mod tests {
     }
 
     #[test]
-    fn a_closed_file_is_ready_at_once() {
+    fn a_closed_file_is_ready_once_two_polls_find_it_unchanged() {
         let dir = tempfile::tempdir().unwrap();
         let photo = dir.path().join("p.png");
         std::fs::write(&photo, b"complete").unwrap();
         let mut state = State::default();
         state.note(&photo, WriteState::Closed);
-        assert_eq!(state.ready(Duration::from_secs(3600)), [photo]);
+        let hour = Duration::from_secs(3600);
+        assert!(state.ready(hour).is_empty());
+        assert_eq!(state.ready(hour), [photo]);
+    }
+
+    fn jpeg_bytes() -> Vec<u8> {
+        let img = image::RgbImage::from_fn(32, 16, |x, y| image::Rgb([x as u8 * 8, y as u8, 9]));
+        let mut bytes = Vec::new();
+        img.write_to(
+            &mut std::io::Cursor::new(&mut bytes),
+            image::ImageFormat::Jpeg,
+        )
+        .unwrap();
+        bytes
+    }
+
+    /// A writer that closes a photo it has not finished (a copy in pieces): the
+    /// half-written JPEG is not converted until its end arrives.
+    #[test]
+    fn a_closed_but_cut_off_photo_waits_for_the_rest() {
+        let dir = tempfile::tempdir().unwrap();
+        let photo = dir.path().join("p.jpg");
+        let jpeg = jpeg_bytes();
+        std::fs::write(&photo, &jpeg[..jpeg.len() / 2]).unwrap();
+        let mut state = State::default();
+        state.note(&photo, WriteState::Closed);
+        let hour = Duration::from_secs(3600);
+        for _ in 0..4 {
+            assert!(state.ready(hour).is_empty(), "a cut-off JPEG was ready");
+        }
+        std::fs::write(&photo, &jpeg).unwrap();
+        state.note(&photo, WriteState::Closed);
+        assert!(state.ready(hour).is_empty());
+        assert_eq!(state.ready(hour), std::slice::from_ref(&photo));
+        state.handled(&photo);
+        // A PNG without its IEND chunk waits too; past the writer limit it goes on (to
+        // fail as truncated) rather than wait forever.
+        let png = dir.path().join("q.png");
+        std::fs::write(&png, b"\x89PNG\r\n\x1a\n\0\0\0\x0dIHDR").unwrap();
+        state.note(&png, WriteState::Closed);
+        assert!(state.ready(hour).is_empty());
+        assert!(state.ready(hour).is_empty());
+        assert_eq!(state.ready(Duration::ZERO), [png]);
+    }
+
+    #[test]
+    fn a_changed_depth_sidecar_sends_its_photo_round_again() {
+        let dir = tempfile::tempdir().unwrap();
+        let photo = dir.path().join("p.jpg");
+        std::fs::write(&photo, b"photo").unwrap();
+        let mut state = State::default();
+        state.note(&photo, WriteState::Closed);
+        state.ready(Duration::ZERO);
+        assert_eq!(state.ready(Duration::ZERO), std::slice::from_ref(&photo));
+        state.handled(&photo);
+        let sidecar = dir.path().join("p_depth.npy");
+        std::fs::write(&sidecar, b"depth").unwrap();
+        assert_eq!(sidecar_of(&sidecar).as_deref(), Some("p"));
+        state.note(&sidecar, WriteState::Closed);
+        state.ready(Duration::ZERO);
+        assert_eq!(state.ready(Duration::ZERO), std::slice::from_ref(&photo));
+        state.handled(&photo);
+        // Seen again unchanged (a rescan): nothing to do.
+        state.note(&sidecar, WriteState::Unknown);
+        state.ready(Duration::ZERO);
+        assert!(state.ready(Duration::ZERO).is_empty());
     }
 }

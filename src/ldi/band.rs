@@ -121,7 +121,9 @@ fn seeds(input: &BandInput) -> VecDeque<(usize, usize, f32, u32)> {
     let mut budget = vec![0usize; input.width * input.height];
     for (near, far) in input.cuts.pairs(input.disparity) {
         let step = f64::from(input.disparity[near] - input.disparity[far]);
-        let px = ((step * input.px_per_disparity).ceil() as usize + 2).min(input.max_band_px);
+        // In floating point until bounded: a far camera makes the product huge or NaN.
+        let px = ((step * input.px_per_disparity).ceil().max(0.0) + 2.0)
+            .min(input.max_band_px as f64) as usize;
         budget[far] = budget[far].max(px);
     }
     budget

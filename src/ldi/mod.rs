@@ -106,6 +106,11 @@ pub struct LdiStats {
 /// A built layered depth image of one photo.
 pub struct Ldi {
     source: Intrinsics,
+    /// Depth units per mesh unit: the mesh holds depth divided by this power of two
+    /// near the nearest depth, so that any depth scale (micrometres to light years)
+    /// meets the same floating-point ranges and thresholds; cameras are divided by it
+    /// too, which leaves every projection unchanged.
+    scale: f64,
     mesh: mesh::Mesh,
     border: Border,
     supersampling: usize,
@@ -145,7 +150,10 @@ impl Ldi {
     ) -> Result<Self, RelocateError> {
         check_sizes(colours, depth, source)?;
         let (w, h) = (depth.width(), depth.height());
-        let disparity: Vec<f32> = depth.data().iter().map(|&z| (1.0 / z).max(1e-6)).collect();
+        let scale = mesh_scale(depth.data());
+        let unit = scale as f32;
+        let disparity: Vec<f32> = depth.data().iter().map(|&z| (unit / z).max(1e-6)).collect();
+        let reach_units = reach / scale;
         let cuts = edges::detect(
             &disparity,
             w,
@@ -160,7 +168,7 @@ impl Ldi {
             disparity: &disparity,
             colours: colours.data(),
             cuts: &cuts,
-            px_per_disparity: f * reach,
+            px_per_disparity: f * reach_units,
             max_band_px: config.max_band_px,
             threshold: config.edge_threshold,
             patch_radius: config.patch_radius,
@@ -171,7 +179,7 @@ impl Ldi {
             .fold((f32::INFINITY, 0.0f32), |(lo, hi), &d| {
                 (lo.min(d), hi.max(d))
             });
-        let margin = (f * reach * f64::from(hi - lo))
+        let margin = (f * reach_units * f64::from(hi - lo))
             .ceil()
             .min(config.max_band_px as f64)
             + 1.0;
@@ -217,6 +225,7 @@ impl Ldi {
         });
         Ok(Self {
             source: *source,
+            scale,
             mesh,
             border: config.border,
             supersampling: config.supersampling.max(1),
@@ -257,7 +266,8 @@ impl Ldi {
         }
         let k = self.supersampling;
         let intrinsics = supersampled(&self.framed(&view.intrinsics), k);
-        let frame = render::rasterise(&self.mesh, w * h, view.centre, &intrinsics, k);
+        let centre = view.centre.map(|c| c / self.scale);
+        let frame = render::rasterise(&self.mesh, w * h, centre, &intrinsics, k);
         Ok(self.resolve(&frame, colours))
     }
 
@@ -294,14 +304,7 @@ impl Ldi {
                 for sy in 0..k {
                     for sx in 0..k {
                         let i = (y * k + sy) * frame.width + x * k + sx;
-                        let s = frame.sample[i] as usize;
-                        let colour = match &self.band_rgb {
-                            Some(band) if s >= front_samples => band[s - front_samples],
-                            _ => {
-                                let from = 3 * self.mesh.samples[s].colour_from as usize;
-                                [data[from], data[from + 1], data[from + 2]]
-                            }
-                        };
+                        let colour = self.sample_colour(frame.sample[i], data, front_samples);
                         for c in 0..3 {
                             rgb[c] += colour[c] * weight;
                         }
@@ -323,6 +326,43 @@ impl Ldi {
             hole_fraction,
         }
     }
+}
+
+impl Ldi {
+    /// The colour of a rendered sample; black for [`render::EMPTY`] (a view that sees
+    /// none of the mesh, e.g. a camera far behind it or absurdly far to the side).
+    fn sample_colour(&self, sample: u32, data: &[f32], front_samples: usize) -> [f32; 3] {
+        if sample == render::EMPTY {
+            return [0.0; 3];
+        }
+        let s = sample as usize;
+        match &self.band_rgb {
+            Some(band) if s >= front_samples => band[s - front_samples],
+            _ => {
+                let from = 3 * self.mesh.samples[s].colour_from as usize;
+                [data[from], data[from + 1], data[from + 2]]
+            }
+        }
+    }
+}
+
+/// The power of two nearest the smallest positive depth (1 for a map without one):
+/// dividing by a power of two is exact, so a scene already in ordinary units renders
+/// bit for bit as without it.
+fn mesh_scale(depth: &[f32]) -> f64 {
+    let nearest = depth
+        .iter()
+        .copied()
+        .filter(|z| z.is_finite() && *z > 0.0)
+        .fold(f32::INFINITY, f32::min);
+    if !nearest.is_finite() {
+        return 1.0;
+    }
+    f64::from(nearest)
+        .log2()
+        .round()
+        .clamp(-120.0, 120.0)
+        .exp2()
 }
 
 fn supersampled(k: &Intrinsics, factor: usize) -> Intrinsics {

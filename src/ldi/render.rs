@@ -24,7 +24,9 @@ pub(super) struct Frame {
     pub origin: Vec<Origin>,
 }
 
-const EMPTY: u32 = u32::MAX;
+/// No sample: a subsample that nothing covered, not even after hole filling (a view
+/// that sees none of the mesh).
+pub(super) const EMPTY: u32 = u32::MAX;
 
 /// Projects and rasterises `mesh` for a camera at `centre` (in the build camera's frame)
 /// with intrinsics `k` (already supersampled). `front_samples` is how many samples are
@@ -54,7 +56,7 @@ pub(super) fn rasterise(
             _ => Origin::Back,
         })
         .collect();
-    fill_holes(&mut sample, &inv_z, w, h);
+    fill_holes(&mut sample, &mut inv_z, w, h);
     Frame {
         width: w,
         height: h,
@@ -64,7 +66,9 @@ pub(super) fn rasterise(
     }
 }
 
-/// Screen position and 1/z of every vertex; 1/z = 0 marks a vertex behind the camera.
+/// Screen position and 1/z of every vertex; 1/z = 0 marks a vertex behind the camera
+/// or one whose position is not a finite number (a camera absurdly far away), which no
+/// triangle then uses. `centre` is in the mesh's units (see [`super::Ldi`]'s scale).
 fn project(mesh: &Mesh, centre: [f64; 3], k: &Intrinsics) -> Vec<[f32; 3]> {
     let [tx, ty, tz] = centre.map(|c| c as f32);
     let (fx, fy, cx, cy) = (k.fx as f32, k.fy as f32, k.cx as f32, k.cy as f32);
@@ -73,11 +77,17 @@ fn project(mesh: &Mesh, centre: [f64; 3], k: &Intrinsics) -> Vec<[f32; 3]> {
         .map(|v| {
             let z = 1.0 / v.disparity;
             let (qx, qy, qz) = (v.ray[0] * z - tx, v.ray[1] * z - ty, z - tz);
-            if qz <= 1e-6 {
+            // NaN comes from an infinite camera offset.
+            if qz.is_nan() || qz <= 1e-6 {
                 return [0.0, 0.0, 0.0];
             }
             let inv = 1.0 / qz;
-            [fx * qx * inv + cx, fy * qy * inv + cy, inv]
+            let p = [fx * qx * inv + cx, fy * qy * inv + cy, inv];
+            if p.iter().all(|c| c.is_finite()) && inv > 0.0 {
+                p
+            } else {
+                [0.0, 0.0, 0.0]
+            }
         })
         .collect()
 }
@@ -107,11 +117,20 @@ fn fill_triangle(
 
 /// Each uncovered subsample takes the sample of the farthest of the nearest covered
 /// subsamples to its left, right, top and bottom: what is left uncovered opens next to
-/// an occluder or the frame, and the background lies on the far side.
-fn fill_holes(sample: &mut [u32], inv_z: &[f32], w: usize, h: usize) {
-    if !sample.contains(&EMPTY) {
-        return;
+/// an occluder or the frame, and the background lies on the far side. A subsample
+/// whose whole row and column are uncovered (a view that sees the mesh in one corner
+/// only) is filled by a second pass from the first one's results; one that sees
+/// nothing at all stays [`EMPTY`].
+fn fill_holes(sample: &mut [u32], inv_z: &mut [f32], w: usize, h: usize) {
+    for _ in 0..2 {
+        if !sample.contains(&EMPTY) || sample.iter().all(|&s| s == EMPTY) {
+            return;
+        }
+        fill_pass(sample, inv_z, w, h);
     }
+}
+
+fn fill_pass(sample: &mut [u32], inv_z: &mut [f32], w: usize, h: usize) {
     let mut best: Vec<Option<usize>> = vec![None; w * h];
     // (first index, stride, length) of every row and column.
     let rows = (0..h).map(|y| (y * w, 1, w));
@@ -134,6 +153,7 @@ fn fill_holes(sample: &mut [u32], inv_z: &[f32], w: usize, h: usize) {
     for (i, b) in best.iter().enumerate() {
         if let (EMPTY, Some(from)) = (sample[i], b) {
             sample[i] = sample[*from];
+            inv_z[i] = inv_z[*from];
         }
     }
 }

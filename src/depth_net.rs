@@ -85,6 +85,30 @@ pub enum SizePolicy {
     },
 }
 
+/// In words, for messages: "an input whose longest side is 384 px (sides multiples of 32)".
+impl std::fmt::Display for SizePolicy {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match *self {
+            SizePolicy::LongestSide { size, multiple } => write!(
+                f,
+                "an input whose longest side is {size} px (sides multiples of {multiple})"
+            ),
+            SizePolicy::Fixed { width, height } => write!(f, "a fixed {width}x{height} input"),
+            SizePolicy::Multiple {
+                max_side: Some(max),
+                multiple,
+            } => write!(
+                f,
+                "an input with sides multiples of {multiple}, at most {max} px"
+            ),
+            SizePolicy::Multiple {
+                max_side: None,
+                multiple,
+            } => write!(f, "an input with sides multiples of {multiple}"),
+        }
+    }
+}
+
 impl SizePolicy {
     /// The network's input (width, height) for a photo of `width`×`height`.
     pub fn network_size(&self, width: usize, height: usize) -> Option<(usize, usize)> {
@@ -558,7 +582,10 @@ impl DepthNet {
                 path: self.model.model_path.clone(),
                 width,
                 height,
-                problem: format!("too small or too elongated for {:?}", self.spec.size),
+                problem: format!(
+                    "too small or too elongated for the depth network, which takes {}",
+                    self.spec.size
+                ),
             })
     }
 

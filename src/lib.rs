@@ -25,6 +25,7 @@ pub mod output;
 pub mod pfm;
 pub mod photo;
 pub mod pipeline;
+pub mod preflight;
 pub mod record;
 pub mod relocate;
 pub mod reshade;

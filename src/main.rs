@@ -360,7 +360,21 @@ fn run(command: Command) -> Result<()> {
     }
 }
 
+/// Refuses a `--model` that names the wrong kind of file before anything loads.
+fn check_model(args: &reshader::reshade_net::cli::ReshadeArgs) -> Result<()> {
+    if let Some(model) = reshader::preflight::chosen_reshade_model(args.model.as_deref()) {
+        reshader::preflight::check_model_path("--model", &model)?;
+    }
+    Ok(())
+}
+
 fn render(args: RenderArgs) -> Result<()> {
+    // Everything that can be checked without the photo is checked before any work.
+    output::check_output_dir(&args.out)?;
+    if let Some(depthiness) = args.depthiness {
+        reshader::views::check_depthiness(depthiness)?;
+    }
+    check_model(&args.scene.reshade)?;
     let depth = args.scene.scene_depth()?;
     let reshader = args.scene.reshade.build()?;
     let board = pipeline::load_board(&args.board, args.calibration.as_deref())?;
@@ -400,6 +414,8 @@ fn load_scene(args: &SceneArgs) -> Result<Scene> {
 
 fn reshade(args: SingleViewArgs) -> Result<()> {
     output::FileFormat::require(&args.out, output::IMAGE_FORMATS)?;
+    output::check_output_file(&args.out)?;
+    check_model(&args.scene.reshade)?;
     let scene = load_scene(&args.scene)?;
     let req = ViewRequest {
         scene: &scene,
@@ -415,6 +431,10 @@ fn reshade(args: SingleViewArgs) -> Result<()> {
 fn view(args: ViewArgs) -> Result<()> {
     let single = args.single;
     output::FileFormat::require(&single.out, output::IMAGE_FORMATS)?;
+    output::check_output_file(&single.out)?;
+    if !args.no_reshade {
+        check_model(&single.scene.reshade)?;
+    }
     let scene = load_scene(&single.scene)?;
     let req = ViewRequest {
         scene: &scene,
@@ -436,6 +456,7 @@ fn view(args: ViewArgs) -> Result<()> {
 
 fn weave(args: WeaveArgs) -> Result<()> {
     output::FileFormat::require(&args.out, &[output::FileFormat::Png])?;
+    output::check_output_file(&args.out)?;
     let board = pipeline::load_board(&args.board, args.calibration.as_deref())?;
     let panel = pipeline::weave_dir(&args.view_dir, &board, args.blend.into())?;
     let bytes = output::encode_png(&args.out, &panel)?;

@@ -31,6 +31,88 @@ pub enum OutputError {
     },
     #[error("{path}: unknown output type; use one of {allowed}")]
     Extension { path: PathBuf, allowed: String },
+    #[error("cannot write to {what} {path}: {reason}")]
+    NotWritable {
+        what: &'static str,
+        path: PathBuf,
+        reason: String,
+    },
+}
+
+/// Checks, before any work, that a run can write the output directory `out_dir`: it is
+/// a directory or can be created, and both it (if it exists) and the directory beside
+/// it where the run stages its files accept a new file. Creates nothing that stays.
+pub fn check_output_dir(out_dir: &Path) -> Result<(), OutputError> {
+    let refuse = |reason: String| OutputError::NotWritable {
+        what: "--out",
+        path: out_dir.into(),
+        reason,
+    };
+    match fs::metadata(out_dir) {
+        Ok(meta) if !meta.is_dir() => {
+            return Err(refuse("it exists and is not a directory".into()))
+        }
+        Ok(_) => probe(out_dir).map_err(refuse)?,
+        Err(_) => {}
+    }
+    probe(&nearest_existing(&parent_dir(out_dir))).map_err(refuse)
+}
+
+/// Checks, before any work, that `path` can be written: its directory exists and
+/// accepts a new file, and `path` is not a directory.
+pub fn check_output_file(path: &Path) -> Result<(), OutputError> {
+    let refuse = |reason: String| OutputError::NotWritable {
+        what: "--out",
+        path: path.into(),
+        reason,
+    };
+    if path.is_dir() {
+        return Err(refuse("it is a directory".into()));
+    }
+    let dir = parent_dir(path);
+    if !dir.is_dir() {
+        return Err(refuse(format!(
+            "its directory {} does not exist",
+            dir.display()
+        )));
+    }
+    probe(&dir).map_err(refuse)
+}
+
+/// The deepest existing ancestor of `dir` (itself if it exists).
+fn nearest_existing(dir: &Path) -> PathBuf {
+    let mut at = dir.to_path_buf();
+    loop {
+        if fs::symlink_metadata(&at).is_ok() {
+            return at;
+        }
+        match at.parent() {
+            Some(p) if !p.as_os_str().is_empty() => at = p.to_path_buf(),
+            _ => return PathBuf::from("."),
+        }
+    }
+}
+
+/// Whether a new file can be created in `dir` (created and removed at once): the test
+/// that holds for root, read-only mounts and pseudo file systems alike, unlike the
+/// permission bits.
+fn probe(dir: &Path) -> Result<(), String> {
+    if !dir.is_dir() {
+        return Err(format!("{} is not a directory", dir.display()));
+    }
+    let path = dir.join(format!(".reshader-probe.tmp-{}", std::process::id()));
+    match fs::OpenOptions::new()
+        .write(true)
+        .create_new(true)
+        .open(&path)
+    {
+        Ok(_) => {
+            let _ = fs::remove_file(&path);
+            Ok(())
+        }
+        Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => Ok(()),
+        Err(e) => Err(format!("{} does not accept new files ({e})", dir.display())),
+    }
 }
 
 /// File types chosen by extension.

@@ -96,3 +96,33 @@ fn missing_embedded_depth_and_bad_options_fail_cleanly() {
         assert!(!Path::new(out).exists(), "{out} was written");
     }
 }
+
+/// Issue 26: errors read as words, not Rust Debug output ("LongestSide { size: 64,
+/// multiple: 16 }").
+#[test]
+fn a_photo_the_depth_network_cannot_take_is_refused_in_words() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("strip.png");
+    RgbImage::from_fn(400, 10, |x, _| image::Rgb([x as u8, 9, 9]))
+        .save(&path)
+        .unwrap();
+    let out = dir.path().join("depth.npy");
+    let model =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/depth/fixture-logdisp.json");
+    let result = reshader(&[
+        "depth",
+        path.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--depth-model",
+        model.to_str().unwrap(),
+    ]);
+    let err = String::from_utf8_lossy(&result.stderr);
+    assert_eq!(result.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains("an input whose longest side is 64 px (sides multiples of 16)"),
+        "{err}"
+    );
+    assert!(!err.contains('{') && !err.contains("LongestSide"), "{err}");
+    assert!(!out.exists());
+}

@@ -467,3 +467,74 @@ fn calibration_with_a_misspelt_key_or_absurd_values() {
         case.assert_failed_cleanly(&result, needles);
     }
 }
+
+/// Issue 26: an unwritable --out was found only after the whole render had run.
+#[test]
+fn unwritable_out_is_refused_before_any_work() {
+    let case = Case::new();
+    let board = tiny_board();
+    let under_a_file = format!("{}/out", case.photo);
+    for out in [under_a_file.as_str(), "/proc/reshader-no-such/out"] {
+        let result = run(&[
+            "-v",
+            "render",
+            &case.photo,
+            "--depth",
+            &case.depth,
+            "--board",
+            &board,
+            "--out",
+            out,
+        ]);
+        case.assert_failed_cleanly(&result, &["cannot write to --out", out]);
+        let err = stderr(&result);
+        assert!(
+            !err.contains("photo ") && !err.contains("rendered"),
+            "work was done first: {err}"
+        );
+    }
+    let view_out = case.path("no-such-dir/view.png");
+    let result = run(&[
+        "view",
+        &case.photo,
+        "--depth",
+        &case.depth,
+        "--camera",
+        "0.1,0,0",
+        "--out",
+        &view_out,
+    ]);
+    case.assert_failed_cleanly(&result, &["no-such-dir", "does not exist"]);
+    let result = run(&[
+        "convert",
+        &case.photo,
+        "--board",
+        &board,
+        "--out",
+        &under_a_file,
+    ]);
+    case.assert_failed_cleanly(&result, &["cannot write to --out"]);
+    assert!(result.stdout.is_empty(), "a photo was attempted");
+}
+
+/// Issue 26: `--model x.onnx` said "stream did not contain valid UTF-8".
+#[test]
+fn model_given_as_its_onnx_file_names_the_manifest() {
+    let case = Case::new();
+    let fixtures = Path::new(env!("CARGO_MANIFEST_DIR")).join("models/fixtures");
+    let onnx = fixtures.join("reshade-fixture-fp32-encoder.onnx");
+    let onnx = onnx.display().to_string();
+    let result = case.render(&case.photo, &case.depth, &["--model", &onnx]);
+    case.assert_failed_cleanly(
+        &result,
+        &[
+            "is an ONNX graph",
+            "the .json file beside the .onnx",
+            "reshade-fixture-fp32-encoder.json",
+        ],
+    );
+    assert!(!stderr(&result).contains("UTF-8"), "{}", stderr(&result));
+    let binary = bad_file(&case.path("bad-model.bin"), &[0xff, 0xfe, 0x00, 0x9c]);
+    let result = case.render(&case.photo, &case.depth, &["--model", &binary]);
+    case.assert_failed_cleanly(&result, &["bad-model.bin", "is not a model manifest"]);
+}

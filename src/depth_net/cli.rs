@@ -71,6 +71,7 @@ pub fn run_depth(args: &DepthCommandArgs) -> Result<String, DepthCommandError> {
         output::FileFormat::Png,
     ];
     output::FileFormat::require(&args.out, &all)?;
+    output::check_output_file(&args.out)?;
     let estimator = args
         .stage
         .estimator(args.depth, args.precision)

@@ -42,6 +42,10 @@ pub enum GalleryError {
     ReshadeNet(#[from] NetError),
     #[error("{0}")]
     Options(String),
+    #[error(transparent)]
+    Output(#[from] crate::output::OutputError),
+    #[error(transparent)]
+    ModelPath(#[from] crate::preflight::ModelPathError),
     #[error("{failed} of {total} photos failed")]
     SomeFailed { failed: usize, total: usize },
     #[error("cannot install the SIGINT/SIGTERM handler: {0}")]
@@ -213,6 +217,12 @@ fn print_report(report: &PhotoReport, json: bool) {
 /// network are loaded here, once, and shared by every photo (a bad --depth-model or
 /// --model fails before any photo).
 pub fn pipeline_converter(args: &GalleryArgs) -> Result<impl Converter, GalleryError> {
+    if let Some(out) = &args.out {
+        crate::output::check_output_dir(out)?;
+    }
+    if let Some(model) = crate::preflight::chosen_reshade_model(args.reshade.model.as_deref()) {
+        crate::preflight::check_model_path("--model", &model)?;
+    }
     let board = pipeline::load_board(&args.board, args.calibration.as_deref())?;
     let estimator = args
         .estimate
@@ -232,6 +242,7 @@ pub fn pipeline_converter(args: &GalleryArgs) -> Result<impl Converter, GalleryE
     Ok(FnConverter::new(
         fingerprint,
         move |photo: &Path, out_dir: &Path| -> Result<ConvertReport, String> {
+            crate::output::check_output_dir(out_dir).map_err(|e| e.to_string())?;
             let depth = match find_depth(photo) {
                 Some((path, kind)) => SceneDepth::File { path, kind },
                 None => SceneDepth::Estimate(Arc::clone(&estimator)),

@@ -244,8 +244,12 @@ fn parent_dir(path: &Path) -> PathBuf {
 }
 
 /// Inside a staging directory: the relative paths of its files, one a line, written
-/// (atomically) when the run starts moving them into the destination.
+/// (atomically) when the run starts moving them into the destination, followed by
+/// `-`-prefixed lines naming the earlier run's products to remove.
 const COMMIT_LIST: &str = ".commit";
+
+/// The record of a run in its output directory; its `outputs` list the run's files.
+const RUN_RECORD: &str = "run.json";
 
 /// The files of one run, written into a hidden directory beside the destination and
 /// moved into the destination only by [`Staging::commit`]. Dropping an uncommitted
@@ -296,23 +300,74 @@ impl Staging {
         self.out_dir.join(rel)
     }
 
-    /// Moves every staged file into the destination; view files left there by an
-    /// earlier run with more views are removed so the directory describes one run.
+    /// Moves every staged file into the destination and removes the products of the
+    /// earlier run there that this run did not write (those its run.json lists, and
+    /// view files of a run with more views), so that the directory holds exactly one
+    /// run's products: a re-render with `--only panel` or another board's quilt name
+    /// leaves no old sbs.png or quilt beside the new files. The removals are part of
+    /// the commit list, so a commit killed half-way is finished with them.
     pub fn commit(mut self) -> Result<Vec<PathBuf>, OutputError> {
         let files = std::mem::take(&mut self.files);
+        let stale = previous_products(&self.out_dir, &files);
         let list: String = files
             .iter()
             .map(|rel| format!("{}\n", rel.display()))
+            .chain(stale.iter().map(|rel| format!("-{}\n", rel.display())))
             .collect();
         write_atomic(&self.stage_dir.join(COMMIT_LIST), list.as_bytes())?;
-        move_staged(&self.stage_dir, &self.out_dir, &files)?;
+        move_staged(&self.stage_dir, &self.out_dir, &files, &stale)?;
         Ok(files.iter().map(|rel| self.out_dir.join(rel)).collect())
     }
 }
 
+/// The files the run recorded in `out_dir/run.json` lists that `written` does not
+/// replace. Only plain relative paths inside the directory count: a run.json edited to
+/// name `../x` or `/etc/x` removes nothing outside.
+fn previous_products(out_dir: &Path, written: &[PathBuf]) -> Vec<PathBuf> {
+    let Ok(bytes) = fs::read(out_dir.join(RUN_RECORD)) else {
+        return Vec::new();
+    };
+    let Ok(record) = serde_json::from_slice::<serde_json::Value>(&bytes) else {
+        return Vec::new();
+    };
+    let Some(outputs) = record.get("outputs").and_then(|o| o.as_array()) else {
+        return Vec::new();
+    };
+    outputs
+        .iter()
+        .filter_map(|o| o.as_str())
+        .map(PathBuf::from)
+        .filter(|rel| {
+            !rel.as_os_str().is_empty()
+                && rel
+                    .components()
+                    .all(|c| matches!(c, std::path::Component::Normal(_)))
+                && !written.contains(rel)
+        })
+        .collect()
+}
+
+/// Parses a commit list into the files to move in and the files to remove.
+fn parse_commit_list(list: &str) -> (Vec<PathBuf>, Vec<PathBuf>) {
+    let (mut moves, mut removals) = (Vec::new(), Vec::new());
+    for line in list.lines().filter(|l| !l.is_empty()) {
+        match line.strip_prefix('-') {
+            Some(rel) => removals.push(PathBuf::from(rel)),
+            None => moves.push(PathBuf::from(line)),
+        }
+    }
+    (moves, removals)
+}
+
 /// Moves the staged `files` that are still in `stage_dir` into `out_dir` (a resumed
-/// commit finds some already moved) and removes the views an earlier run left.
-fn move_staged(stage_dir: &Path, out_dir: &Path, files: &[PathBuf]) -> Result<(), OutputError> {
+/// commit finds some already moved), then removes the earlier run's `stale` products
+/// and the views an earlier run left.
+fn move_staged(
+    stage_dir: &Path,
+    out_dir: &Path,
+    files: &[PathBuf],
+    stale: &[PathBuf],
+) -> Result<(), OutputError> {
     for rel in files {
         let (src, dest) = (stage_dir.join(rel), out_dir.join(rel));
         if !src.exists() {
@@ -324,6 +379,20 @@ fn move_staged(stage_dir: &Path, out_dir: &Path, files: &[PathBuf]) -> Result<()
         };
         fs::create_dir_all(parent_dir(&dest)).map_err(io_err)?;
         fs::rename(&src, &dest).map_err(io_err)?;
+    }
+    for rel in stale {
+        let path = out_dir.join(rel);
+        match fs::remove_file(&path) {
+            Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
+                return Err(OutputError::Io { path, source: e })
+            }
+            _ => {}
+        }
+        // A folder the old run filled and this one does not use (views/ after
+        // --only panel) goes too, if nothing else is in it.
+        if let Some(dir) = rel.parent().filter(|d| !d.as_os_str().is_empty()) {
+            let _ = fs::remove_dir(out_dir.join(dir));
+        }
     }
     remove_stale_views(&out_dir.join("views"), files)
 }
@@ -358,12 +427,12 @@ pub fn recover(out_dir: &Path) -> Result<(), OutputError> {
         }
         let stage_dir = entry.path();
         if let Ok(list) = fs::read_to_string(stage_dir.join(COMMIT_LIST)) {
-            let files: Vec<PathBuf> = list.lines().map(PathBuf::from).collect();
+            let (files, stale) = parse_commit_list(&list);
             log::warn!(
                 "finishing the interrupted write of {} (process {pid})",
                 out_dir.display()
             );
-            move_staged(&stage_dir, out_dir, &files)?;
+            move_staged(&stage_dir, out_dir, &files, &stale)?;
         }
         fs::remove_dir_all(&stage_dir).map_err(|source| OutputError::Io {
             path: stage_dir.clone(),
@@ -487,6 +556,59 @@ mod tests {
         assert!(!out.join("views/view_07.png").exists());
         assert!(out.join("views/notes.txt").exists());
         assert_eq!(fs::read_dir(dir.path()).unwrap().count(), 1);
+    }
+
+    #[test]
+    fn commit_removes_what_the_previous_run_json_lists_and_nothing_else() {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("out");
+        fs::create_dir_all(out.join("views")).unwrap();
+        let old = [
+            "views/view_00.png",
+            "quilt_qs8x6a0.75.png",
+            "panel.png",
+            "sbs.png",
+            "run.json",
+        ];
+        for name in old {
+            fs::write(out.join(name), b"old").unwrap();
+        }
+        fs::write(dir.path().join("outside.txt"), b"keep").unwrap();
+        fs::write(out.join("notes.txt"), b"keep").unwrap();
+        let mut listed: Vec<&str> = old.to_vec();
+        listed.extend(["../outside.txt", "/etc/hostname", ""]);
+        let record = serde_json::json!({ "outputs": listed });
+        fs::write(out.join("run.json"), record.to_string()).unwrap();
+        let mut staging = Staging::new(&out).unwrap();
+        staging.write("panel.png", b"new").unwrap();
+        staging.write("run.json", b"{}").unwrap();
+        staging.commit().unwrap();
+        let mut left: Vec<String> = fs::read_dir(&out)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
+        left.sort();
+        assert_eq!(left, ["notes.txt", "panel.png", "run.json"]);
+        assert_eq!(fs::read(out.join("panel.png")).unwrap(), b"new");
+        assert!(dir.path().join("outside.txt").exists());
+    }
+
+    #[test]
+    fn an_abandoned_commit_also_finishes_its_removals() {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("out");
+        fs::create_dir_all(&out).unwrap();
+        fs::write(out.join("sbs.png"), b"old").unwrap();
+        fs::write(out.join("run.json"), b"new, moved in before the kill").unwrap();
+        let stage = dir
+            .path()
+            .join(format!("{}{}", staging_prefix(&out), i32::MAX));
+        fs::create_dir_all(&stage).unwrap();
+        fs::write(stage.join("panel.png"), b"new").unwrap();
+        fs::write(stage.join(COMMIT_LIST), "panel.png\nrun.json\n-sbs.png\n").unwrap();
+        drop(Staging::new(&out).unwrap());
+        assert_eq!(fs::read(out.join("panel.png")).unwrap(), b"new");
+        assert!(!out.join("sbs.png").exists());
     }
 
     /// A staging directory as a run killed during its commit leaves it.

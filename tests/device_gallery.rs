@@ -577,3 +577,44 @@ fn watch_with_a_bad_reshading_model_fails_before_reading_the_folder() {
     assert!(output.stdout.is_empty(), "no photo was attempted");
     assert!(!out.exists());
 }
+
+/// Issue 26: the already-converted check ignored the depth sidecar, so a corrected
+/// depth map never reached the gallery.
+#[test]
+fn convert_again_when_the_depth_sidecar_changes() {
+    let dir = tempfile::tempdir().unwrap();
+    let board = board(dir.path());
+    let photo = dir.path().join("one.jpg");
+    std::fs::write(&photo, photo_bytes(4)).unwrap();
+    write_depth(&photo);
+    let convert = || {
+        let output = reshader()
+            .args(["convert", photo.to_str().unwrap(), "--json", "--board"])
+            .arg(&board)
+            .output()
+            .unwrap();
+        assert!(
+            output.status.success(),
+            "{}",
+            String::from_utf8_lossy(&output.stderr)
+        );
+        json_lines(&output.stdout)[0]["status"]
+            .as_str()
+            .unwrap()
+            .to_string()
+    };
+    assert_eq!(convert(), "converted");
+    assert_eq!(convert(), "skipped");
+    // A right-to-left ramp instead.
+    let (w, h) = (32usize, 24usize);
+    let data: Vec<f32> = (0..w * h)
+        .map(|i| 3.0 - 2.0 * (i % w) as f32 / w as f32)
+        .collect();
+    std::fs::write(
+        dir.path().join("one_depth.npy"),
+        reshader::npy::encode_f32(&[h, w], &data),
+    )
+    .unwrap();
+    assert_eq!(convert(), "converted");
+    assert_eq!(convert(), "skipped");
+}

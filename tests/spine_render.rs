@@ -303,3 +303,65 @@ fn boards_lists_every_builtin() {
     }
     assert!(text.contains("1536x2048, 48 views"));
 }
+
+/// The files directly in `dir` and in its subfolders, relative and sorted.
+fn tree(dir: &Path) -> Vec<String> {
+    let mut found = Vec::new();
+    for entry in std::fs::read_dir(dir).unwrap().flatten() {
+        let name = entry.file_name().to_string_lossy().into_owned();
+        if entry.path().is_dir() {
+            found.extend(
+                tree(&entry.path())
+                    .into_iter()
+                    .map(|f| format!("{name}/{f}")),
+            );
+        } else {
+            found.push(name);
+        }
+    }
+    found.sort();
+    found
+}
+
+/// Issue 26: re-rendering into a used --out kept the earlier run's products beside the
+/// new ones (the old sbs.png and quilt after `--only panel`, another board's quilt).
+#[test]
+fn an_output_directory_holds_exactly_one_runs_products() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("out");
+    let run = render_tiny(&out, &[]);
+    let listed: Vec<String> = serde_json::from_value(run["outputs"].clone()).unwrap();
+    let mut listed_sorted = listed.clone();
+    listed_sorted.sort();
+    assert_eq!(tree(&out), listed_sorted);
+    assert!(listed.iter().any(|o| o.starts_with("quilt_qs3x2")));
+
+    render_tiny(&out, &["--only", "panel"]);
+    assert_eq!(tree(&out), ["panel.png", "run.json"]);
+
+    // Another board, another quilt name: the old one goes.
+    let board = std::fs::read_to_string(tiny_board())
+        .unwrap()
+        .replace("quilt_cols = 3", "quilt_cols = 2")
+        .replace("quilt_rows = 2", "quilt_rows = 3");
+    let board_path = tmp.path().join("tall.toml");
+    std::fs::write(&board_path, board).unwrap();
+    let board_s = board_path.display().to_string();
+    render_tiny(&out, &["--only", "quilt,sbs"]);
+    let first: Vec<String> = tree(&out);
+    assert!(
+        first.iter().any(|f| f.starts_with("quilt_qs3x2")),
+        "{first:?}"
+    );
+    let (photo, depth) = write_scene(tmp.path());
+    let out_s = out.display().to_string();
+    let result = spine_support::run(&[
+        "render", &photo, "--depth", &depth, "--board", &board_s, "--out", &out_s, "--only",
+        "quilt",
+    ]);
+    assert!(result.status.success(), "{}", stderr(&result));
+    let files = tree(&out);
+    assert_eq!(files.len(), 2, "{files:?}");
+    assert!(files[0].starts_with("quilt_qs2x3"), "{files:?}");
+    assert_eq!(files[1], "run.json");
+}

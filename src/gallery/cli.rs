@@ -239,7 +239,7 @@ pub fn pipeline_converter(args: &GalleryArgs) -> Result<impl Converter, GalleryE
     let calibration = args.calibration.clone();
     let depthiness = args.depthiness;
     let relocator = args.relocate.build();
-    Ok(FnConverter::new(
+    let converter = FnConverter::new(
         fingerprint,
         move |photo: &Path, out_dir: &Path| -> Result<ConvertReport, String> {
             crate::output::check_output_dir(out_dir).map_err(|e| e.to_string())?;
@@ -273,7 +273,14 @@ pub fn pipeline_converter(args: &GalleryArgs) -> Result<impl Converter, GalleryE
                     .collect::<BTreeMap<_, _>>(),
             })
         },
-    ))
+    );
+    // The depth sidecar is an input: editing it converts the photo again.
+    Ok(converter.with_inputs(|photo| {
+        find_depth(photo)
+            .map(|(path, _)| path)
+            .into_iter()
+            .collect()
+    }))
 }
 
 /// Everything that changes a conversion's outputs, so that changing it reconverts.

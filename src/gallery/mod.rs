@@ -42,6 +42,11 @@ pub trait Converter {
     /// Describes every setting that changes the outputs (board, products, …); a photo
     /// converted under another fingerprint is converted again.
     fn fingerprint(&self) -> String;
+    /// The files besides the photo whose content the conversion of `photo` reads (its
+    /// depth sidecar): an edited, added or removed one converts the photo again.
+    fn inputs(&self, _photo: &Path) -> Vec<PathBuf> {
+        Vec::new()
+    }
     fn convert(&self, photo: &Path, out_dir: &Path) -> Result<ConvertReport, String>;
 }
 
@@ -49,6 +54,7 @@ pub trait Converter {
 pub struct FnConverter<F> {
     fingerprint: String,
     convert: F,
+    inputs: fn(&Path) -> Vec<PathBuf>,
 }
 
 impl<F, E> FnConverter<F>
@@ -60,7 +66,14 @@ where
         Self {
             fingerprint: fingerprint.into(),
             convert,
+            inputs: |_| Vec::new(),
         }
+    }
+
+    /// The other files a photo's conversion reads (see [`Converter::inputs`]).
+    pub fn with_inputs(mut self, inputs: fn(&Path) -> Vec<PathBuf>) -> Self {
+        self.inputs = inputs;
+        self
     }
 }
 
@@ -71,6 +84,10 @@ where
 {
     fn fingerprint(&self) -> String {
         self.fingerprint.clone()
+    }
+
+    fn inputs(&self, photo: &Path) -> Vec<PathBuf> {
+        (self.inputs)(photo)
     }
 
     fn convert(&self, photo: &Path, out_dir: &Path) -> Result<ConvertReport, String> {
@@ -198,6 +215,10 @@ impl fmt::Display for Summary {
 struct DoneMarker {
     photo: String,
     sha256: String,
+    /// sha256 of every other input by file name (the depth sidecar); markers written
+    /// before this field existed read as none.
+    #[serde(default)]
+    inputs: BTreeMap<String, String>,
     fingerprint: String,
     /// Output paths relative to the output directory.
     outputs: Vec<PathBuf>,
@@ -260,10 +281,27 @@ pub fn convert_one(
             )
         }
     };
+    let mut inputs = BTreeMap::new();
+    for input in converter.inputs(photo) {
+        match sha256_file(&input) {
+            Ok(sha) => {
+                inputs.insert(file_name(&input), sha);
+            }
+            Err(e) => {
+                return PhotoReport::failed(
+                    photo,
+                    out_dir,
+                    format!("cannot read {}: {e}", input.display()),
+                    ms(started),
+                )
+            }
+        }
+    }
     let hash_ms = ms(started);
     let marker = DoneMarker {
         photo: file_name(photo),
         sha256,
+        inputs,
         fingerprint: converter.fingerprint(),
         outputs: Vec::new(),
     };
@@ -349,6 +387,7 @@ fn publish_marker(
 
 fn is_current(done: &DoneMarker, wanted: &DoneMarker, out_dir: &Path) -> bool {
     done.sha256 == wanted.sha256
+        && done.inputs == wanted.inputs
         && done.fingerprint == wanted.fingerprint
         && done.outputs.iter().all(|p| out_dir.join(p).exists())
 }
@@ -461,6 +500,43 @@ mod tests {
         std::fs::remove_file(dir.path().join("out/p/panel.png")).unwrap();
         run(Status::Converted);
         assert_eq!(calls.get(), 3);
+    }
+
+    #[test]
+    fn an_edited_added_or_removed_sidecar_converts_again() {
+        let dir = tempfile::tempdir().unwrap();
+        let photo = dir.path().join("p.jpg");
+        std::fs::write(&photo, b"good").unwrap();
+        let calls = Cell::new(0);
+        let conv = FnConverter::new("fake", |photo: &Path, out: &Path| {
+            calls.set(calls.get() + 1);
+            fake_converter(&Cell::new(0)).convert(photo, out)
+        })
+        .with_inputs(|photo| {
+            let sidecar = photo.with_file_name("p_depth.npy");
+            sidecar.is_file().then_some(sidecar).into_iter().collect()
+        });
+        let run = |expected: Status| {
+            convert_batch(
+                std::slice::from_ref(&photo),
+                &OutLayout::BesidePhoto,
+                false,
+                &conv,
+                |r| assert_eq!(r.status, expected, "{r}"),
+            );
+        };
+        run(Status::Converted);
+        run(Status::Skipped);
+        let sidecar = dir.path().join("p_depth.npy");
+        std::fs::write(&sidecar, b"depth v1").unwrap();
+        run(Status::Converted);
+        run(Status::Skipped);
+        std::fs::write(&sidecar, b"depth v2").unwrap();
+        run(Status::Converted);
+        std::fs::remove_file(&sidecar).unwrap();
+        run(Status::Converted);
+        run(Status::Skipped);
+        assert_eq!(calls.get(), 4);
     }
 
     #[test]

@@ -65,11 +65,37 @@ pub fn check_alloc(what: impl fmt::Display, count: u64, size: u64) -> Result<(),
     Ok(())
 }
 
-/// Reads a whole input file, refusing it by its size before reading.
+/// Reads a whole input file, refusing it by its size before reading. Only regular
+/// files are opened: a FIFO, socket or device would block or never end.
 pub fn read_input(path: &Path) -> Result<Vec<u8>, ReadError> {
-    let len = std::fs::metadata(path).map_err(ReadError::Io)?.len();
+    let meta = std::fs::metadata(path).map_err(ReadError::Io)?;
+    if !meta.is_file() {
+        return Err(ReadError::Io(not_a_regular_file(&meta)));
+    }
+    let len = meta.len();
     check_alloc(format!("a file of {len} bytes"), len, 1).map_err(ReadError::TooLarge)?;
     std::fs::read(path).map_err(ReadError::Io)
+}
+
+/// The error for an input that is a directory, FIFO, socket or device.
+pub fn not_a_regular_file(meta: &std::fs::Metadata) -> std::io::Error {
+    use std::os::unix::fs::FileTypeExt;
+    let t = meta.file_type();
+    let what = if t.is_dir() {
+        "a directory"
+    } else if t.is_fifo() {
+        "a FIFO (named pipe)"
+    } else if t.is_socket() {
+        "a socket"
+    } else if t.is_block_device() || t.is_char_device() {
+        "a device"
+    } else {
+        "something other than a file"
+    };
+    std::io::Error::new(
+        std::io::ErrorKind::InvalidInput,
+        format!("it is {what}, not a regular file; it was not opened"),
+    )
 }
 
 #[derive(Debug, thiserror::Error)]

@@ -135,6 +135,10 @@ impl FileRecord {
 }
 
 pub fn sha256_file(path: &Path) -> std::io::Result<String> {
+    let meta = std::fs::metadata(path)?;
+    if !meta.is_file() {
+        return Err(crate::limits::not_a_regular_file(&meta));
+    }
     let mut file = std::fs::File::open(path)?;
     let mut hasher = Sha256::new();
     let mut buf = vec![0u8; 1 << 16];

@@ -618,3 +618,95 @@ fn convert_again_when_the_depth_sidecar_changes() {
     assert_eq!(convert(), "converted");
     assert_eq!(convert(), "skipped");
 }
+
+/// Issue 26: `convert DIR/*` counted its own sidecars and NAME.reshader/ folders as
+/// failed photos and exited 1 when run again; `convert DIR` said "Is a directory"; a
+/// FIFO among the inputs hung the batch.
+#[test]
+fn convert_takes_folders_and_globs_and_passes_over_what_is_not_a_photo() {
+    let dir = tempfile::tempdir().unwrap();
+    let board = board(dir.path());
+    let photos = dir.path().join("photos");
+    std::fs::create_dir(&photos).unwrap();
+    for (name, seed) in [("a.jpg", 1), ("b.JPG", 2)] {
+        let photo = photos.join(name);
+        std::fs::write(&photo, photo_bytes(seed)).unwrap();
+        write_depth(&photo);
+    }
+    std::fs::write(photos.join("notes.txt"), b"not a photo").unwrap();
+    let fifo = photos.join("pipe.jpg");
+    let c_path = std::ffi::CString::new(fifo.to_str().unwrap()).unwrap();
+    // SAFETY: mkfifo(3) on a NUL-terminated path inside the test's own directory.
+    assert_eq!(unsafe { libc::mkfifo(c_path.as_ptr(), 0o644) }, 0);
+    let glob = || -> Vec<PathBuf> {
+        let mut all: Vec<PathBuf> = std::fs::read_dir(&photos)
+            .unwrap()
+            .map(|e| e.unwrap().path())
+            .collect();
+        all.sort();
+        all
+    };
+    let convert = |inputs: &[PathBuf]| {
+        let mut child = reshader()
+            .args(["-v", "convert", "--json", "--board"])
+            .arg(&board)
+            .args(inputs)
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap();
+        let started = std::time::Instant::now();
+        while child.try_wait().unwrap().is_none() {
+            assert!(started.elapsed() < PATIENCE, "convert hung");
+            std::thread::sleep(Duration::from_millis(50));
+        }
+        child.wait_with_output().unwrap()
+    };
+    // The shell's DIR/*: photos, sidecars, a text file and a FIFO.
+    let first = convert(&glob());
+    let stderr = String::from_utf8_lossy(&first.stderr);
+    assert_eq!(first.status.code(), Some(0), "{stderr}");
+    let lines = json_lines(&first.stdout);
+    assert_eq!(status_of(&lines, "converted"), 2, "{lines:?}");
+    assert_eq!(lines.len(), 2, "{lines:?}");
+    assert!(stderr.contains("pipe.jpg: it is a FIFO"), "{stderr}");
+    assert!(
+        stderr.contains("a_depth.npy: the depth sidecar of"),
+        "{stderr}"
+    );
+    assert!(stderr.contains("notes.txt: not a JPEG or PNG"), "{stderr}");
+    // Again over DIR/*, which now also holds a.reshader/ and b.reshader/; and over DIR.
+    for inputs in [glob(), vec![photos.clone()]] {
+        let again = convert(&inputs);
+        let stderr = String::from_utf8_lossy(&again.stderr);
+        assert_eq!(again.status.code(), Some(0), "{stderr}");
+        let lines = json_lines(&again.stdout);
+        assert_eq!(
+            (lines.len(), status_of(&lines, "skipped")),
+            (2, 2),
+            "{lines:?}"
+        );
+    }
+    let again = convert(&glob());
+    assert!(String::from_utf8_lossy(&again.stderr).contains("a.reshader: a reshader output folder"));
+    // Nothing but things that are not photos: an error, not a silent success.
+    let none = convert(&[photos.join("notes.txt"), fifo.clone()]);
+    assert_eq!(none.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&none.stderr).contains("none of the inputs is a photo"));
+    // render never opens a FIFO either.
+    let render = reshader()
+        .args(["render"])
+        .arg(&fifo)
+        .arg("--board")
+        .arg(&board)
+        .arg("--out")
+        .arg(dir.path().join("out"))
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&render.stderr);
+    assert_eq!(render.status.code(), Some(1), "{stderr}");
+    assert!(
+        stderr.contains("pipe.jpg") && stderr.contains("FIFO"),
+        "{stderr}"
+    );
+}

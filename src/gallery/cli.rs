@@ -84,7 +84,9 @@ pub struct GalleryArgs {
 
 #[derive(clap::Args, Debug)]
 pub struct ConvertArgs {
-    /// Photos (JPEG or PNG). Depth: NAME_depth.{npy,png,pfm,exr} (scene units) or
+    /// Photos (JPEG or PNG), or folders of them (not recursive). Depth sidecars,
+    /// NAME.reshader/ output folders, other files and special files among them are
+    /// passed over (-v lists them). Depth: NAME_depth.{npy,png,pfm,exr} (scene units) or
     /// NAME_disparity.{npy,png,pfm,exr} (relative disparity) beside the photo if present,
     /// else the depth the photo carries, else the depth network.
     #[arg(required = true)]
@@ -134,8 +136,14 @@ The depth and reshading networks are loaded once, before the first photo: a bad 
 fails the command before any photo is touched. Changing the model, its precision or the
 reshading options reconverts photos converted before.
 
+A folder stands for the photos in it; depth sidecars, the NAME.reshader/ output
+folders, files that are not JPEG or PNG and special files (FIFOs, devices) among the
+inputs are passed over and never opened (-v lists them), so `convert DIR/*` and
+`convert DIR` can be run again and again.
+
 Examples:
   reshader convert ~/DCIM/*.jpg --board looking-glass-go
+  reshader convert ~/DCIM --board looking-glass-go
   reshader convert a.jpg b.jpg --board looking-glass-portrait --out panels/ --json";
 
 pub const WATCH_ABOUT: &str = "\
@@ -150,10 +158,22 @@ Example:
 
 /// `reshader convert`.
 pub fn run_convert(args: &ConvertArgs) -> Result<(), GalleryError> {
+    let (photos, passed_over) = collect_photos(&args.photos);
+    for (path, why) in &passed_over {
+        log::info!("not converting {}: {why}", path.display());
+    }
+    if photos.is_empty() && !passed_over.is_empty() {
+        let (path, why) = &passed_over[0];
+        return Err(GalleryError::Options(format!(
+            "none of the inputs is a photo to convert ({} passed over; {}: {why})",
+            passed_over.len(),
+            path.display()
+        )));
+    }
     let converter = pipeline_converter(&args.gallery)?;
     let layout = layout(&args.gallery);
     let json = args.gallery.json;
-    let summary = convert_batch(&args.photos, &layout, args.force, &converter, |r| {
+    let summary = convert_batch(&photos, &layout, args.force, &converter, |r| {
         print_report(r, json)
     });
     eprintln!("{summary}");
@@ -162,9 +182,101 @@ pub fn run_convert(args: &ConvertArgs) -> Result<(), GalleryError> {
     } else {
         Err(GalleryError::SomeFailed {
             failed: summary.failed,
-            total: args.photos.len(),
+            total: photos.len(),
         })
     }
+}
+
+/// The photos among `convert`'s inputs, in order, and the inputs passed over with the
+/// reason. A folder stands for the photos directly in it (sorted by name); what a
+/// batch over `DIR/*` also catches is passed over: depth sidecars of photos beside
+/// them, the batch's own `NAME.reshader/` output folders, files that are not JPEG or
+/// PNG by name, and special files (FIFOs, sockets, devices), which are never opened.
+/// A path that does not exist stays in, to fail with its own message.
+pub fn collect_photos(inputs: &[PathBuf]) -> (Vec<PathBuf>, Vec<(PathBuf, String)>) {
+    let (mut photos, mut passed) = (Vec::new(), Vec::new());
+    for input in inputs {
+        let Ok(meta) = std::fs::metadata(input) else {
+            photos.push(input.clone());
+            continue;
+        };
+        if meta.is_dir() {
+            if is_output_dir(input) {
+                passed.push((input.clone(), "a reshader output folder".into()));
+                continue;
+            }
+            let Ok(entries) = std::fs::read_dir(input) else {
+                photos.push(input.clone());
+                continue;
+            };
+            let mut inside: Vec<PathBuf> = entries.flatten().map(|e| e.path()).collect();
+            inside.sort();
+            for path in inside {
+                match std::fs::metadata(&path) {
+                    Ok(m) if m.is_dir() => {}
+                    Ok(m) => match pass_over(&path, &m) {
+                        Some(why) => passed.push((path, why)),
+                        None => photos.push(path),
+                    },
+                    Err(_) => {}
+                }
+            }
+            continue;
+        }
+        match pass_over(input, &meta) {
+            Some(why) => passed.push((input.clone(), why)),
+            None => photos.push(input.clone()),
+        }
+    }
+    (photos, passed)
+}
+
+/// Why a file among the inputs is not a photo to convert, if it is not.
+fn pass_over(path: &Path, meta: &std::fs::Metadata) -> Option<String> {
+    if !meta.is_file() {
+        return Some(crate::limits::not_a_regular_file(meta).to_string());
+    }
+    if let Some(photo) = photo_of_sidecar(path) {
+        return Some(format!("the depth sidecar of {}", photo.display()));
+    }
+    let name = path.file_name()?.to_string_lossy();
+    if name.starts_with('.') {
+        return Some("a hidden file".into());
+    }
+    let is_photo = path
+        .extension()
+        .and_then(|e| e.to_str())
+        .is_some_and(|e| PHOTO_EXTENSIONS.contains(&e.to_ascii_lowercase().as_str()));
+    (!is_photo).then(|| "not a JPEG or PNG (by its name)".into())
+}
+
+/// Photo file extensions `convert` takes from folders and globs.
+const PHOTO_EXTENSIONS: &[&str] = &["jpg", "jpeg", "png"];
+
+/// The photo beside `path` whose depth sidecar it is (`a_depth.png` beside `a.jpg`).
+fn photo_of_sidecar(path: &Path) -> Option<PathBuf> {
+    let name = path.file_name()?.to_str()?;
+    let (stem, ext) = name.rsplit_once('.')?;
+    if !DEPTH_EXTENSIONS.contains(&ext.to_ascii_lowercase().as_str()) {
+        return None;
+    }
+    let photo_stem = DEPTH_SIDECARS
+        .iter()
+        .find_map(|(suffix, _)| stem.strip_suffix(suffix))?;
+    PHOTO_EXTENSIONS
+        .iter()
+        .flat_map(|e| [e.to_string(), e.to_ascii_uppercase()])
+        .map(|e| path.with_file_name(format!("{photo_stem}.{e}")))
+        .find(|p| p.is_file())
+}
+
+/// Whether `dir` is an output folder of `convert`/`render`: named `NAME.reshader` or
+/// holding a done-marker or a run.json.
+fn is_output_dir(dir: &Path) -> bool {
+    dir.file_name()
+        .is_some_and(|n| n.to_string_lossy().ends_with(super::BESIDE_SUFFIX))
+        || dir.join(super::DONE_MARKER).is_file()
+        || dir.join("run.json").is_file()
 }
 
 /// `reshader watch`: runs until SIGINT or SIGTERM.

@@ -394,6 +394,9 @@ fn is_current(done: &DoneMarker, wanted: &DoneMarker, out_dir: &Path) -> bool {
 
 /// A marker that cannot be read or parsed counts as absent: the photo is redone.
 fn read_marker(path: &Path) -> Option<DoneMarker> {
+    if !std::fs::metadata(path).ok()?.is_file() {
+        return None;
+    }
     let bytes = std::fs::read(path).ok()?;
     serde_json::from_slice(&bytes).ok()
 }

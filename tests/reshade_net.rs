@@ -438,5 +438,13 @@ mod lobes {
         let mut zero = camera(&image);
         zero.fx = 0.0;
         assert!(net.prepare_photo(&image, &depth, &zero).is_err());
+        let empty = SrgbImage::new(0, 0);
+        let none = reshader::depth::DepthMap::new(0, 0, Vec::new());
+        let msg = net
+            .prepare_photo(&empty, &none, &camera(&empty))
+            .err()
+            .unwrap()
+            .to_string();
+        assert!(msg.contains("0x0"), "{msg}");
     }
 }

@@ -396,6 +396,11 @@ impl LobeReshader {
         camera: &Intrinsics,
     ) -> Result<LobePhoto<'a>, NetError> {
         let (w, h) = (image.width() as usize, image.height() as usize);
+        if w == 0 || h == 0 {
+            return Err(NetError::Input(format!(
+                "the photo is {w}x{h}: nothing to reshade"
+            )));
+        }
         if depth.width() != w || depth.height() != h {
             return Err(NetError::Input(format!(
                 "depth is {}x{} but the photo is {w}x{h}",

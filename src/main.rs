@@ -375,9 +375,33 @@ fn render(args: RenderArgs) -> Result<()> {
         reshader::views::check_depthiness(depthiness)?;
     }
     check_model(&args.scene.reshade)?;
+    let board = pipeline::load_board(&args.board, args.calibration.as_deref())?;
+    // The memory the sizes imply, before anything large is allocated. A photo whose
+    // header cannot be read is reported by loading it; its board still counts.
+    let photo_size = reshader::photo::header_size(&args.scene.photo).unwrap_or((1, 1));
+    let size = reshader::preflight::render_size(
+        photo_size,
+        &board,
+        &args.only,
+        matches!(args.blend, BlendArg::Linear),
+        &args.scene.reshade,
+        !matches!(args.scene.depth, DepthInput::File(_)),
+    );
+    reshader::preflight::check_memory(
+        format!(
+            "rendering a {}x{} photo for {} ({} views of {}x{})",
+            photo_size.0,
+            photo_size.1,
+            board.name(),
+            board.views(),
+            board.view_size().0,
+            board.view_size().1
+        ),
+        &reshader::preflight::estimate(&size),
+        reshader::preflight::RENDER_HINT,
+    )?;
     let depth = args.scene.scene_depth()?;
     let reshader = args.scene.reshade.build()?;
-    let board = pipeline::load_board(&args.board, args.calibration.as_deref())?;
     let board_file = Path::new(&args.board)
         .is_file()
         .then(|| PathBuf::from(&args.board));
@@ -406,6 +430,24 @@ fn render(args: RenderArgs) -> Result<()> {
     Ok(())
 }
 
+/// Refuses a single view at the photo's resolution that would not fit --max-memory.
+fn check_single_view_memory(args: &SceneArgs, reshading: bool) -> Result<()> {
+    let Some(photo) = reshader::photo::header_size(&args.photo) else {
+        return Ok(());
+    };
+    let size = reshader::preflight::single_view_size(
+        photo,
+        reshading.then_some(&args.reshade),
+        !matches!(args.depth, DepthInput::File(_)),
+    );
+    reshader::preflight::check_memory(
+        format!("a view of a {}x{} photo", photo.0, photo.1),
+        &reshader::preflight::estimate(&size),
+        reshader::preflight::VIEW_HINT,
+    )?;
+    Ok(())
+}
+
 fn load_scene(args: &SceneArgs) -> Result<Scene> {
     let depth = args.scene_depth()?;
     let mut timings = reshader::record::Timings::default();
@@ -416,6 +458,7 @@ fn reshade(args: SingleViewArgs) -> Result<()> {
     output::FileFormat::require(&args.out, output::IMAGE_FORMATS)?;
     output::check_output_file(&args.out)?;
     check_model(&args.scene.reshade)?;
+    check_single_view_memory(&args.scene, true)?;
     let scene = load_scene(&args.scene)?;
     let req = ViewRequest {
         scene: &scene,
@@ -435,6 +478,7 @@ fn view(args: ViewArgs) -> Result<()> {
     if !args.no_reshade {
         check_model(&single.scene.reshade)?;
     }
+    check_single_view_memory(&single.scene, !args.no_reshade)?;
     let scene = load_scene(&single.scene)?;
     let req = ViewRequest {
         scene: &scene,
@@ -458,6 +502,11 @@ fn weave(args: WeaveArgs) -> Result<()> {
     output::FileFormat::require(&args.out, &[output::FileFormat::Png])?;
     output::check_output_file(&args.out)?;
     let board = pipeline::load_board(&args.board, args.calibration.as_deref())?;
+    reshader::preflight::check_memory(
+        format!("weaving for {}", board.name()),
+        &reshader::preflight::weave_estimate(&board, matches!(args.blend, BlendArg::Linear)),
+        "",
+    )?;
     let panel = pipeline::weave_dir(&args.view_dir, &board, args.blend.into())?;
     let bytes = output::encode_png(&args.out, &panel)?;
     output::write_atomic(&args.out, &bytes)?;

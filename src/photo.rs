@@ -197,6 +197,29 @@ impl Photo {
     }
 }
 
+/// The width and height of a photo as its header claims them, turned upright by its
+/// EXIF orientation, without decoding its pixels (and without opening anything but a
+/// regular file); `None` when the header cannot be read, which loading the photo then
+/// reports.
+pub fn header_size(path: &Path) -> Option<(u32, u32)> {
+    use image::metadata::Orientation;
+    if !std::fs::metadata(path).ok()?.is_file() {
+        return None;
+    }
+    let mut reader = ImageReader::open(path).ok()?.with_guessed_format().ok()?;
+    reader.limits(limits::image_limits(u32::MAX));
+    let mut decoder = reader.into_decoder().ok()?;
+    let (w, h) = decoder.dimensions();
+    let turned = matches!(
+        decoder.orientation(),
+        Ok(Orientation::Rotate90
+            | Orientation::Rotate270
+            | Orientation::Rotate90FlipH
+            | Orientation::Rotate270FlipH)
+    );
+    Some(if turned { (h, w) } else { (w, h) })
+}
+
 /// Decodes an 8-bit RGB image within the size limits, turned upright by its EXIF
 /// orientation.
 pub fn load_rgb8(path: &Path) -> Result<RgbImage, PhotoError> {

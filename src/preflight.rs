@@ -80,3 +80,391 @@ fn starts_as_text(path: &Path) -> bool {
         Err(e) => e.error_len().is_none(),
     }
 }
+
+/// Bytes per pixel of the buffers a render keeps, by what they hold (see
+/// [`estimate`]); docs/reliability.md lists them.
+pub mod factors {
+    /// Photo: the decoder's buffer, the 8-bit copy, the float image, its depth map and
+    /// a resampled copy of it (3 + 3 + 12 + 4 + 4).
+    pub const PHOTO: u64 = 26;
+    /// Photo fitted to the views: float image, depth, the network's depth (12 + 4 + 4).
+    pub const FITTED: u64 = 20;
+    /// Layered depth image per fitted pixel: mesh samples and vertices, disparity, band.
+    pub const LDI: u64 = 64;
+    /// One view's reshaded colours (float RGB), all views held at once.
+    pub const RESHADED: u64 = 12;
+    /// One finished view (8-bit RGB), all views held at once.
+    pub const VIEW: u64 = 3;
+    /// Rendering one view: the 2x2-supersampled id, depth and hole-filling buffers and
+    /// the float result, per view pixel.
+    pub const VIEW_SCRATCH: u64 = 120;
+    /// The quilt and its PNG encoding, per quilt pixel.
+    pub const QUILT: u64 = 6;
+    /// The panel, its lookup table (nearest; linear is 6 more) and PNG, per panel pixel.
+    pub const PANEL: u64 = 9;
+    /// Reshading network activations per working pixel (photo pixels times
+    /// --reshade-scale squared): the encoder's features and one decoder run, the latter
+    /// for each view decoded at once (--reshade-batch times --parallel-views).
+    pub const NET_FEATURES: u64 = 400;
+    pub const NET_PER_VIEW: u64 = 500;
+    /// The reshading network's weights and engine, whatever the photo.
+    pub const NET_FIXED: u64 = 8 << 20;
+    /// The depth network (weights, activations at its fixed input size), when depth is
+    /// not read from a file: while tract loads and optimises it (before any view
+    /// exists), and what it keeps afterwards.
+    pub const DEPTH_NET_LOADING: u64 = 136 << 20;
+    pub const DEPTH_NET: u64 = 40 << 20;
+    /// The process itself: code, allocator, thread stacks, the image codecs.
+    pub const BASE: u64 = 24 << 20;
+    /// Added to the sum for the allocator's fragmentation and what the factors miss,
+    /// in percent.
+    pub const SLACK_PERCENT: u64 = 15;
+}
+
+/// What a render of a photo for a board involves, for [`estimate`].
+#[derive(Clone, Copy, Debug)]
+pub struct RenderSize {
+    /// The photo's width and height (from its header).
+    pub photo: (u32, u32),
+    pub views: u32,
+    pub view: (u32, u32),
+    /// Quilt pixels; 0 when no quilt is written.
+    pub quilt_pixels: u64,
+    /// Panel pixels; 0 when no panel is written.
+    pub panel_pixels: u64,
+    /// Linear blending (a larger weaving table).
+    pub linear: bool,
+    /// The reshading network's working scale and views decoded at once; `None`
+    /// without a network.
+    pub network: Option<(f64, u32)>,
+    /// Whether the depth network may run.
+    pub depth_network: bool,
+}
+
+/// An estimate of the memory a render needs, by part.
+#[derive(Clone, Debug)]
+pub struct MemoryEstimate {
+    pub parts: Vec<(&'static str, u64)>,
+}
+
+impl MemoryEstimate {
+    pub fn total(&self) -> u64 {
+        self.parts.iter().map(|p| p.1).fold(0, u64::saturating_add)
+    }
+
+    /// The largest parts, for messages: "views 1.2 GiB, panel 96 MiB, …".
+    fn largest(&self) -> String {
+        let mut parts = self.parts.clone();
+        parts.sort_by_key(|p| std::cmp::Reverse(p.1));
+        parts
+            .iter()
+            .take(4)
+            .map(|(what, bytes)| format!("{what} {}", crate::limits::Bytes(*bytes)))
+            .collect::<Vec<_>>()
+            .join(", ")
+    }
+}
+
+/// The pixels of the photo once fitted to views of `view`: the pipeline shrinks it to
+/// cover the view when it is larger (see `pipeline::Fitted`).
+fn fitted_pixels((pw, ph): (u32, u32), (vw, vh): (u32, u32)) -> u64 {
+    let cover = (f64::from(vw) / f64::from(pw.max(1))).max(f64::from(vh) / f64::from(ph.max(1)));
+    if cover < 1.0 {
+        let w = (f64::from(pw) * cover).ceil() as u64;
+        let h = (f64::from(ph) * cover).ceil() as u64;
+        w.max(1) * h.max(1)
+    } else {
+        u64::from(pw) * u64::from(ph)
+    }
+}
+
+/// The memory a render of `size` needs at its peak, from the sizes alone, each part a
+/// documented factor ([`factors`]) times its pixels. The peak is the larger of two
+/// moments. Loading: the reshading network is loaded, the photo decoded, and the depth
+/// network loaded, which tract needs far more memory for while it optimises the graph
+/// than afterwards. Running: the photo, the fitted photo and the networks are held
+/// throughout, with the larger of relocating the views (the LDI, every view's reshaded
+/// colours, the finished views, one view's rendering scratch) and writing the products
+/// (the views and the larger of the quilt and the panel, made one after the other).
+/// [`factors::SLACK_PERCENT`] is added. Measured against the smallest --max-memory
+/// each of thirteen renders passed with (photos of 400 pixels to 12 megapixels, five
+/// boards, with and without the networks), it lies 1.1x to 1.7x above it.
+pub fn estimate(size: &RenderSize) -> MemoryEstimate {
+    use factors::*;
+    let photo = u64::from(size.photo.0) * u64::from(size.photo.1);
+    let fitted = fitted_pixels(size.photo, size.view);
+    let view = u64::from(size.view.0) * u64::from(size.view.1);
+    let n = u64::from(size.views);
+    let m = |a: u64, b: u64| a.saturating_mul(b);
+    let sum =
+        |parts: &[(&'static str, u64)]| parts.iter().map(|p| p.1).fold(0, u64::saturating_add);
+    let mut loading = vec![("process", BASE), ("photo", m(photo, PHOTO))];
+    if size.network.is_some() {
+        loading.push(("reshading network", NET_FIXED));
+    }
+    if size.depth_network {
+        loading.push(("depth network", DEPTH_NET_LOADING));
+    }
+    let mut parts = vec![
+        ("process", BASE),
+        ("photo", m(photo, PHOTO)),
+        ("fitted photo", m(fitted, FITTED)),
+    ];
+    if let Some((scale, at_once)) = size.network {
+        let scale = if scale.is_finite() {
+            scale.clamp(0.0, 1.0)
+        } else {
+            1.0
+        };
+        let working = (fitted as f64 * scale * scale).ceil() as u64;
+        let per_pixel = NET_FEATURES + NET_PER_VIEW * u64::from(at_once.max(1));
+        parts.push((
+            "reshading network",
+            NET_FIXED.saturating_add(m(working, per_pixel)),
+        ));
+    }
+    if size.depth_network {
+        parts.push(("depth network", DEPTH_NET));
+    }
+    let views = ("views", m(m(view, VIEW), n));
+    let relocating = [
+        ("layered depth image", m(fitted, LDI)),
+        ("reshaded views", m(m(fitted, RESHADED), n)),
+        views,
+        ("view rendering", m(view, VIEW_SCRATCH)),
+    ];
+    let quilt = ("quilt", m(size.quilt_pixels, QUILT));
+    let panel = (
+        "panel",
+        m(size.panel_pixels, PANEL + if size.linear { 6 } else { 0 }),
+    );
+    let writing = [views, if quilt.1 >= panel.1 { quilt } else { panel }];
+    if sum(&relocating) >= sum(&writing) {
+        parts.extend(relocating);
+    } else {
+        parts.extend(writing);
+    }
+    if sum(&loading) > sum(&parts) {
+        parts = loading;
+    }
+    let slack = sum(&parts) / 100 * SLACK_PERCENT;
+    parts.push(("allocator slack", slack));
+    MemoryEstimate { parts }
+}
+
+/// A run whose estimate exceeds `--max-memory`.
+#[derive(Debug, thiserror::Error)]
+#[error(
+    "{what} would need about {} of memory ({}), more than --max-memory {}; raise \
+     --max-memory{hint}",
+    crate::limits::Bytes(*.needed), .largest, crate::limits::Bytes(*.ceiling)
+)]
+pub struct OverBudget {
+    pub what: String,
+    pub needed: u64,
+    pub ceiling: u64,
+    pub largest: String,
+    pub hint: &'static str,
+}
+
+/// Refuses `estimate` when it is above the run's ceiling.
+pub fn check_memory(
+    what: impl Into<String>,
+    estimate: &MemoryEstimate,
+    hint: &'static str,
+) -> Result<(), OverBudget> {
+    let ceiling = crate::limits::max_memory();
+    let needed = estimate.total();
+    log::info!(
+        "memory estimate: {} of --max-memory {} ({})",
+        crate::limits::Bytes(needed),
+        crate::limits::Bytes(ceiling),
+        estimate.largest()
+    );
+    if needed > ceiling {
+        return Err(OverBudget {
+            what: what.into(),
+            needed,
+            ceiling,
+            largest: estimate.largest(),
+            hint,
+        });
+    }
+    Ok(())
+}
+
+/// Whether reshading will run a network: a chosen `--model`/`$RESHADER_MODEL` other
+/// than `none`, or the shipped model directory when none is chosen (as
+/// `ReshadeArgs::build` decides).
+pub fn reshading_on(model: Option<&Path>) -> bool {
+    match chosen_reshade_model(model) {
+        Some(path) => path.as_os_str() != "none",
+        None => [
+            PathBuf::from("models/reshade"),
+            Path::new(env!("CARGO_MANIFEST_DIR")).join("models/reshade"),
+        ]
+        .iter()
+        .any(|p| p.is_dir()),
+    }
+}
+
+/// The sizes of rendering a photo of `photo` pixels for `board`, writing `products`
+/// (empty: all).
+pub fn render_size(
+    photo: (u32, u32),
+    board: &interleave::Board,
+    products: &[crate::pipeline::Product],
+    linear: bool,
+    reshade: &crate::reshade_net::cli::ReshadeArgs,
+    depth_network: bool,
+) -> RenderSize {
+    use crate::pipeline::Product;
+    let wants = |p: Product| products.is_empty() || products.contains(&p);
+    let (vw, vh) = board.view_size();
+    let (cols, rows) = board.quilt_grid();
+    let (pw, ph) = board.panel_size();
+    let at_once = (reshade.reshade_batch.max(1) as u64)
+        .saturating_mul(reshade.parallel_views.max(1) as u64)
+        .min(u64::from(u32::MAX)) as u32;
+    RenderSize {
+        photo,
+        views: board.views() as u32,
+        view: (vw, vh),
+        quilt_pixels: if wants(Product::Quilt) {
+            u64::from(cols * vw) * u64::from(rows * vh)
+        } else {
+            0
+        },
+        panel_pixels: if wants(Product::Panel) {
+            u64::from(pw) * u64::from(ph)
+        } else {
+            0
+        },
+        linear,
+        network: reshading_on(reshade.model.as_deref()).then_some((reshade.reshade_scale, at_once)),
+        depth_network,
+    }
+}
+
+/// What to suggest besides raising the ceiling when a render is over it.
+pub const RENDER_HINT: &str =
+    " (or write fewer products with --only, or reshade at a smaller --reshade-scale)";
+
+/// The memory `weave` needs: the board's views read in and the panel.
+pub fn weave_estimate(board: &interleave::Board, linear: bool) -> MemoryEstimate {
+    let (vw, vh) = board.view_size();
+    let (pw, ph) = board.panel_size();
+    let view = u64::from(vw) * u64::from(vh);
+    let panel = u64::from(pw) * u64::from(ph);
+    let per = factors::PANEL + if linear { 6 } else { 0 };
+    MemoryEstimate {
+        parts: vec![
+            ("process", factors::BASE),
+            (
+                "views",
+                view.saturating_mul(factors::VIEW + 4)
+                    .saturating_mul(board.views() as u64),
+            ),
+            ("panel", panel.saturating_mul(per)),
+        ],
+    }
+}
+
+/// The sizes of rendering one view at the photo's own resolution (`view`, `reshade`).
+pub fn single_view_size(
+    photo: (u32, u32),
+    reshade: Option<&crate::reshade_net::cli::ReshadeArgs>,
+    depth_network: bool,
+) -> RenderSize {
+    RenderSize {
+        photo,
+        views: 1,
+        view: photo,
+        quilt_pixels: 0,
+        panel_pixels: 0,
+        linear: false,
+        network: reshade
+            .and_then(|r| reshading_on(r.model.as_deref()).then_some((r.reshade_scale, 1))),
+        depth_network,
+    }
+}
+
+/// What to suggest besides raising the ceiling when a single view is over it.
+pub const VIEW_HINT: &str = " (or reshade at a smaller --reshade-scale)";
+
+/// The memory loading the depth network needs (with the reshading network loaded
+/// first when `reshading`), for commands that load it before any photo.
+pub fn depth_network_estimate(reshading: bool) -> MemoryEstimate {
+    estimate(&RenderSize {
+        photo: (0, 0),
+        views: 0,
+        view: (0, 0),
+        quilt_pixels: 0,
+        panel_pixels: 0,
+        linear: false,
+        network: reshading.then_some((1.0, 1)),
+        depth_network: true,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn size(board: &interleave::Board, photo: (u32, u32), networks: bool) -> RenderSize {
+        let (vw, vh) = board.view_size();
+        let (cols, rows) = board.quilt_grid();
+        let (pw, ph) = board.panel_size();
+        RenderSize {
+            photo,
+            views: board.views() as u32,
+            view: (vw, vh),
+            quilt_pixels: u64::from(cols * vw) * u64::from(rows * vh),
+            panel_pixels: u64::from(pw) * u64::from(ph),
+            linear: true,
+            network: networks.then_some((1.0, 1)),
+            depth_network: networks,
+        }
+    }
+
+    /// The estimate must not refuse an ordinary render at the default ceiling: a
+    /// 12-megapixel phone photo, either way up, on every built-in board, with both
+    /// networks, fits in 4 GiB.
+    #[test]
+    fn a_phone_photo_fits_the_default_ceiling_on_every_board() {
+        for name in interleave::Board::builtin_names() {
+            let board = interleave::Board::builtin(name).unwrap();
+            for photo in [(4032, 3024), (3024, 4032)] {
+                let total = estimate(&size(&board, photo, true)).total();
+                assert!(
+                    total < crate::limits::DEFAULT_MAX_MEMORY,
+                    "{name} {photo:?}: {}",
+                    crate::limits::Bytes(total)
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn the_estimate_grows_with_every_size_and_names_its_largest_parts() {
+        let board = interleave::Board::builtin("looking-glass-portrait").unwrap();
+        let small = estimate(&size(&board, (640, 480), false));
+        let large = estimate(&size(&board, (4032, 3024), false));
+        let networks = estimate(&size(&board, (4032, 3024), true));
+        assert!(small.total() < large.total() && large.total() < networks.total());
+        let text = networks.largest();
+        assert!(text.contains("reshading network"), "{text}");
+        // The loading phase wins for a tiny photo with the depth network.
+        let tiny = estimate(&RenderSize {
+            photo: (24, 16),
+            views: 2,
+            view: (24, 16),
+            quilt_pixels: 0,
+            panel_pixels: 0,
+            linear: false,
+            network: None,
+            depth_network: true,
+        });
+        assert!(tiny.parts.iter().any(|p| p.1 == factors::DEPTH_NET_LOADING));
+    }
+}

@@ -538,3 +538,116 @@ fn model_given_as_its_onnx_file_names_the_manifest() {
     let result = case.render(&case.photo, &case.depth, &["--model", &binary]);
     case.assert_failed_cleanly(&result, &["bad-model.bin", "is not a model manifest"]);
 }
+
+/// Issue 26: memory ceilings crashed (SIGABRT at --max-memory 64M, panics inside tract
+/// at 100M-150M, aborts for 20000x20000 views or a 32768x32768 calibrated panel). The
+/// sizes are now estimated before any work and refused with the figure and the option
+/// to raise; nothing is written and the exit code is 1.
+#[test]
+fn memory_ceilings_refuse_with_the_figure_before_any_work() {
+    let case = Case::new();
+    let expect_refusal = |result: &std::process::Output, needles: &[&str]| {
+        let err = stderr(result);
+        assert_eq!(result.status.code(), Some(1), "{err}");
+        for needle in ["would need about", "raise --max-memory"]
+            .iter()
+            .chain(needles)
+        {
+            assert!(err.contains(needle), "expected {needle:?} in: {err}");
+        }
+    };
+    let huge_views = std::fs::read_to_string(tiny_board())
+        .unwrap()
+        .replace("view_width = 24", "view_width = 20000")
+        .replace("view_height = 16", "view_height = 20000");
+    let board = bad_file(&case.path("bad-board.toml"), huge_views.as_bytes());
+    let out = case.out();
+    let result = run(&[
+        "render",
+        &case.photo,
+        "--depth",
+        &case.depth,
+        "--board",
+        &board,
+        "--out",
+        &out,
+    ]);
+    expect_refusal(&result, &["20000x20000", "GiB"]);
+    let visual = bad_file(
+        &case.path("bad-screen.json"),
+        br#"{"pitch": 38, "slope": -7, "center": 0.5, "screenW": 32768, "screenH": 32768}"#,
+    );
+    let result = case.render(&case.photo, &case.depth, &["--calibration", &visual]);
+    expect_refusal(&result, &["panel"]);
+    // Without the panel it fits.
+    let result = case.render(
+        &case.photo,
+        &case.depth,
+        &["--calibration", &visual, "--only", "views"],
+    );
+    assert_eq!(result.status.code(), Some(0), "{}", stderr(&result));
+    std::fs::remove_dir_all(case.out()).unwrap();
+    let weave_out = case.path("panel.png");
+    let views = case.path("bad-views");
+    std::fs::create_dir(&views).unwrap();
+    let result = run(&[
+        "weave",
+        &views,
+        "--board",
+        &tiny_board(),
+        "--calibration",
+        &visual,
+        "--out",
+        &weave_out,
+    ]);
+    expect_refusal(&result, &["weaving"]);
+    // A ceiling below what the depth network needs to load: render, depth, convert.
+    let portrait = "looking-glass-portrait";
+    let result = run(&[
+        "--max-memory",
+        "64M",
+        "render",
+        &case.photo,
+        "--board",
+        portrait,
+        "--out",
+        &out,
+    ]);
+    expect_refusal(&result, &["--max-memory 64 MiB", "depth network"]);
+    let depth_out = case.path("depth-out.npy");
+    let result = run(&[
+        "--max-memory",
+        "64M",
+        "depth",
+        &case.photo,
+        "--out",
+        &depth_out,
+    ]);
+    expect_refusal(&result, &["loading the depth network"]);
+    let result = run(&[
+        "--max-memory",
+        "64M",
+        "convert",
+        &case.photo,
+        "--board",
+        portrait,
+        "--out",
+        &out,
+    ]);
+    expect_refusal(&result, &["loading the depth network"]);
+    // 48 views of 420x560 from a depth file: over 100M, refused, not aborted.
+    let result = run(&[
+        "--max-memory",
+        "100M",
+        "render",
+        &case.photo,
+        "--depth",
+        &case.depth,
+        "--board",
+        portrait,
+        "--out",
+        &out,
+    ]);
+    expect_refusal(&result, &["48 views of 420x560"]);
+    case.assert_failed_cleanly(&result, &[]);
+}

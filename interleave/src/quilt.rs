@@ -15,7 +15,11 @@ pub fn make_quilt(views: &[RgbImage], cols: u32, rows: u32) -> Result<RgbImage, 
             height: th,
         });
     }
-    let mut quilt = RgbImage::new(tw * cols, th * rows);
+    let mut quilt = crate::weave::try_image(
+        u64::from(tw) * u64::from(cols),
+        u64::from(th) * u64::from(rows),
+        "quilt",
+    )?;
     for (i, view) in views.iter().enumerate() {
         if view.dimensions() != (tw, th) {
             return Err(WeaveError::ViewSize {

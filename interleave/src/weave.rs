@@ -74,8 +74,36 @@ fn for_row_chunks<T: Send>(
     });
 }
 
+/// A black `width`x`height` image whose buffer is reserved fallibly: sizes come from
+/// boards and calibration files, and a refused allocation is an error, not an abort.
+pub(crate) fn try_image(
+    width: u64,
+    height: u64,
+    what: &'static str,
+) -> Result<RgbImage, WeaveError> {
+    let too_large = WeaveError::OutOfMemory {
+        what,
+        width,
+        height,
+    };
+    let (Ok(w), Ok(h)) = (u32::try_from(width), u32::try_from(height)) else {
+        return Err(too_large);
+    };
+    let bytes = width
+        .checked_mul(height)
+        .and_then(|p| p.checked_mul(3))
+        .and_then(|b| usize::try_from(b).ok())
+        .ok_or_else(|| too_large.clone())?;
+    let mut buffer = Vec::new();
+    buffer
+        .try_reserve_exact(bytes)
+        .map_err(|_| too_large.clone())?;
+    buffer.resize(bytes, 0);
+    RgbImage::from_raw(w, h, buffer).ok_or(too_large)
+}
+
 /// Errors from weaving and quilt handling.
-#[derive(Debug, thiserror::Error, PartialEq, Eq)]
+#[derive(Debug, Clone, thiserror::Error, PartialEq, Eq)]
 pub enum WeaveError {
     #[error("expected {expected} views, got {got}")]
     ViewCount { expected: usize, got: usize },
@@ -89,6 +117,12 @@ pub enum WeaveError {
     },
     #[error("views must be at least 1x1 pixel, got {width}x{height}")]
     EmptyView { width: u32, height: u32 },
+    #[error("a {width}x{height} {what} cannot be allocated ({} bytes): not enough memory", *width as u128 * *height as u128 * 3)]
+    OutOfMemory {
+        what: &'static str,
+        width: u64,
+        height: u64,
+    },
     #[error("a quilt grid needs at least one column and one row, got {cols}x{rows}")]
     EmptyGrid { cols: u32, rows: u32 },
     #[error("{views} views do not fit in a {cols}x{rows} quilt")]
@@ -244,7 +278,8 @@ impl Weaver {
 
     /// Weaves one panel frame from the views (view 0 the leftmost camera).
     pub fn weave(&self, views: &[RgbImage]) -> Result<RgbImage, WeaveError> {
-        let mut out = RgbImage::new(self.panel_w, self.panel_h);
+        self.check_views(views)?;
+        let mut out = try_image(u64::from(self.panel_w), u64::from(self.panel_h), "panel")?;
         self.weave_into(views, &mut out)?;
         Ok(out)
     }

@@ -308,3 +308,18 @@ proptest! {
         prop_assert_eq!(quilt.dimensions(), (vw * cols, vh * rows));
     }
 }
+
+/// Issue 26: a quilt or panel whose size comes from a board is allocated fallibly; one
+/// that cannot exist is an error, not an overflow panic or an abort.
+#[test]
+fn an_impossible_quilt_is_an_error() {
+    let views = flat_views(1, 1, 1);
+    for n in [100_000_000, u32::MAX] {
+        let err = make_quilt(&views, n, n).unwrap_err();
+        assert!(
+            matches!(err, WeaveError::OutOfMemory { what: "quilt", .. }),
+            "{err}"
+        );
+        assert!(err.to_string().contains("cannot be allocated"), "{err}");
+    }
+}

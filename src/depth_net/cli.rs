@@ -41,6 +41,8 @@ pub enum DepthCommandError {
     Output(#[from] OutputError),
     #[error("{0}")]
     Options(String),
+    #[error(transparent)]
+    Memory(#[from] crate::preflight::OverBudget),
 }
 
 /// `reshader depth`.
@@ -72,6 +74,13 @@ pub fn run_depth(args: &DepthCommandArgs) -> Result<String, DepthCommandError> {
     ];
     output::FileFormat::require(&args.out, &all)?;
     output::check_output_file(&args.out)?;
+    if args.depth != DepthSource::Embedded {
+        crate::preflight::check_memory(
+            "loading the depth network",
+            &crate::preflight::depth_network_estimate(false),
+            "",
+        )?;
+    }
     let estimator = args
         .stage
         .estimator(args.depth, args.precision)

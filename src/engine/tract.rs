@@ -138,10 +138,21 @@ fn guarded<T>(
             .map(|s| s.to_string())
             .or_else(|| panic.downcast_ref::<String>().cloned())
             .unwrap_or_else(|| "unknown".into());
+        // tract panics when an allocation fails (the kernel holds the heap to
+        // --max-memory): that is the ceiling, not a broken model.
+        let message = if reason.contains("failed to allocate") {
+            format!(
+                "out of memory while loading it under --max-memory {} (tract: {reason}); \
+                 raise --max-memory",
+                crate::limits::Bytes(crate::limits::max_memory())
+            )
+        } else {
+            format!("the graph is malformed (tract failed: {reason})")
+        };
         Err(EngineError::Load {
             engine: NAME,
             path: path.to_owned(),
-            message: format!("the graph is malformed (tract failed: {reason})"),
+            message,
         })
     })
 }

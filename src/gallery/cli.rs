@@ -46,6 +46,8 @@ pub enum GalleryError {
     Output(#[from] crate::output::OutputError),
     #[error(transparent)]
     ModelPath(#[from] crate::preflight::ModelPathError),
+    #[error(transparent)]
+    Memory(#[from] crate::preflight::OverBudget),
     #[error("{failed} of {total} photos failed")]
     SomeFailed { failed: usize, total: usize },
     #[error("cannot install the SIGINT/SIGTERM handler: {0}")]
@@ -340,6 +342,14 @@ pub fn pipeline_converter(args: &GalleryArgs) -> Result<impl Converter, GalleryE
         .estimate
         .estimator(DepthSource::Auto)
         .map_err(GalleryError::Options)?;
+    // The depth network is loaded here, once, before any photo: first its memory.
+    crate::preflight::check_memory(
+        "loading the depth network",
+        &crate::preflight::depth_network_estimate(crate::preflight::reshading_on(
+            args.reshade.model.as_deref(),
+        )),
+        "",
+    )?;
     estimator.net()?;
     let reshader = args.reshade.build()?;
     let fingerprint = fingerprint(args, &board, &estimator, &*reshader);
@@ -351,11 +361,34 @@ pub fn pipeline_converter(args: &GalleryArgs) -> Result<impl Converter, GalleryE
     let calibration = args.calibration.clone();
     let depthiness = args.depthiness;
     let relocator = args.relocate.build();
+    let reshade_args = args.reshade.clone();
     let converter = FnConverter::new(
         fingerprint,
         move |photo: &Path, out_dir: &Path| -> Result<ConvertReport, String> {
             crate::output::check_output_dir(out_dir).map_err(|e| e.to_string())?;
-            let depth = match find_depth(photo) {
+            let sidecar = find_depth(photo);
+            if let Some(size) = crate::photo::header_size(photo) {
+                let need = crate::preflight::render_size(
+                    size,
+                    &board,
+                    &only,
+                    false,
+                    &reshade_args,
+                    sidecar.is_none(),
+                );
+                crate::preflight::check_memory(
+                    format!(
+                        "photo {}: rendering it ({}x{})",
+                        photo.display(),
+                        size.0,
+                        size.1
+                    ),
+                    &crate::preflight::estimate(&need),
+                    crate::preflight::RENDER_HINT,
+                )
+                .map_err(|e| e.to_string())?;
+            }
+            let depth = match sidecar {
                 Some((path, kind)) => SceneDepth::File { path, kind },
                 None => SceneDepth::Estimate(Arc::clone(&estimator)),
             };

@@ -44,7 +44,7 @@ impl From<NetError> for ReshadeError {
 }
 
 /// How the per-view work is done; every choice other than the default trades fidelity
-/// or memory for time (see the README's table).
+/// or memory for time (docs/benchmarks.md, "Per-view cost options").
 #[derive(Clone, Debug, PartialEq)]
 pub struct NetOptions {
     /// Working resolution as a fraction of the photo's, in (0, 1].

@@ -247,7 +247,7 @@ pub(crate) struct Context {
 }
 
 /// Working resolution and key views of the candidate design timed against the naive
-/// configuration (README, "Per-view cost options": ×0.5 and 8 key views).
+/// configuration (docs/benchmarks.md, "Per-view cost options": ×0.5 and 8 key views).
 pub const CANDIDATE_SCALE: f64 = 0.5;
 pub const CANDIDATE_KEY_VIEWS: usize = 8;
 

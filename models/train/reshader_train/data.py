@@ -120,6 +120,15 @@ def pixel_rays(
     return rays
 
 
+# Radiance beyond float16's range (a light seen directly, scaled to the scene's median)
+# would become inf; tone mapping clips far below this anyway.
+HALF_MAX = 60000.0
+
+
+def to_half(image: np.ndarray) -> np.ndarray:
+    return np.clip(np.nan_to_num(image, posinf=HALF_MAX), 0.0, HALF_MAX).astype(np.float16)
+
+
 def load_example(folder: Path) -> Example:
     try:
         meta = json.loads((folder / "meta.json").read_text())
@@ -150,8 +159,8 @@ def load_example(folder: Path) -> Example:
     scene = scene_name(meta)
     return Example(
         name=folder.name,
-        input=np.nan_to_num(image).astype(np.float16),
-        reshaded=np.nan_to_num(reshaded).astype(np.float16),
+        input=to_half(image),
+        reshaded=to_half(reshaded),
         disparity=disparity_from_depth(depth),
         mask=mask,
         offset=offset,

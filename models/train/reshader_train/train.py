@@ -47,7 +47,15 @@ def checked_pixel_loss(name: str) -> str:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--data", type=Path, required=True, help="training dataset folder")
+    p.add_argument(
+        "--data",
+        type=Path,
+        nargs="+",
+        required=True,
+        help="training dataset folder(s); their examples are pooled, and a folder given N "
+        "times is drawn N times as often (e.g. a small path-traced set beside a large "
+        "analytic one)",
+    )
     p.add_argument("--val-data", type=Path, help="held-out folder for the periodic PSNR check")
     p.add_argument("--run-dir", type=Path, required=True, help="config, logs and checkpoints")
     p.add_argument("--size", default="lite", help="full | lite | six comma-separated widths")
@@ -263,7 +271,8 @@ def validate(net: ReshadeNet, val: ReshadeDataset, count: int, device: torch.dev
 
 def shared_example_list(args: argparse.Namespace, d: Dist) -> list[Path]:
     """Rank 0's listing of the training examples, so that every rank shards the same list."""
-    folders = list_examples(args.data)[: args.limit] if d.main else []
+    pooled = [f for root in args.data for f in list_examples(root)]
+    folders = pooled[: args.limit] if d.main else []
     if d.world > 1:
         box = [folders]
         dist.broadcast_object_list(box, src=0)
@@ -289,8 +298,8 @@ def make_loader(
     )
     if len(sampler) < args.batch_size:
         raise DatasetError(
-            f"{args.data}: {len(dataset)} examples give {len(sampler)} per process, fewer than "
-            f"--batch-size {args.batch_size}"
+            f"{', '.join(map(str, args.data))}: {len(dataset)} examples give "
+            f"{len(sampler)} per process, fewer than --batch-size {args.batch_size}"
         )
     loader = DataLoader(
         dataset,

@@ -141,6 +141,22 @@ def test_rescan_picks_up_new_examples(data, tmp_path, monkeypatch):
     assert [int(r["examples"]) for r in read_csv(run / "log.csv")] == [2, 4, 4]
 
 
+def test_several_data_folders_are_pooled_and_a_repeated_one_weighs_more(data, tmp_path):
+    from reshader_train.train import add_arguments, setup_distributed, shared_example_list
+
+    parser = argparse.ArgumentParser()
+    add_arguments(parser)
+    argv = ["--run-dir", str(tmp_path), "--data", str(data[0]), str(data[1]), str(data[1])]
+    args = parser.parse_args(argv)
+    folders = shared_example_list(args, setup_distributed("cpu"))
+    assert len(folders) == 4 + 2 * 2
+    assert folders.count(list_examples(data[1])[0]) == 2
+    pooled = train_args(data, tmp_path / "pooled", 2)
+    pooled.data = [data[0], data[1]]
+    train(pooled)
+    assert [int(r["examples"]) for r in read_csv(tmp_path / "pooled" / "log.csv")] == [6, 6]
+
+
 def test_pixel_only_training_records_its_loss(data, tmp_path):
     run = tmp_path / "pixels"
     train(train_args(data, run, 2, loss_weights="0.1,0,0", pixel_loss="l2"))

@@ -30,6 +30,7 @@ pub mod record;
 pub mod relocate;
 pub mod reshade;
 pub mod reshade_net;
+pub mod rgbd;
 pub mod views;
 
 pub use interleave;

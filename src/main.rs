@@ -25,7 +25,7 @@ else from the shipped depth network; --depth FILE uses a depth map of your own.
 The main job is `render`; every stage also runs alone for scripting and debugging.
 
 Examples:
-  # everything for a Looking Glass Portrait: views/, quilt, panel.png, sbs.png, run.json
+  # everything for a Looking Glass Portrait: views/, quilt, panel.png, sbs.png, rgbd.png, run.json
   reshader render examples/pumpkin/pumpkin.jpg --board looking-glass-portrait --out out/
 
   # the same with a depth map you have (here the example's relative disparity)
@@ -67,7 +67,7 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
-    /// Render all views of a board and write views/, the quilt, panel.png, sbs.png and run.json.
+    /// Render all views of a board and write views/, the quilt, panel.png, sbs.png, rgbd.png and run.json.
     #[command(long_about = RENDER_ABOUT)]
     Render(RenderArgs),
     /// Estimate depth for a photo: the depth it carries, or the depth network.
@@ -114,6 +114,8 @@ Writes into --out:
   quilt_qs{cols}x{rows}a{aspect}.png   Looking-Glass quilt, view 0 bottom-left
   panel.png                            the frame woven for the board's panel
   sbs.png                              side-by-side pair (outermost views, or --sbs-pair)
+  rgbd.png                             the photo beside its depth (grey, near = white),
+                                       focus and depthiness in its text chunks
   run.json                             inputs with sha256 (and where depth came from),
                                        board, camera per view, timings
 

@@ -29,6 +29,11 @@ pub enum OutputError {
         path: PathBuf,
         source: image::ImageError,
     },
+    #[error("cannot encode {path}: {source}")]
+    EncodePng {
+        path: PathBuf,
+        source: png::EncodingError,
+    },
     #[error("{path}: unknown output type; use one of {allowed}")]
     Extension { path: PathBuf, allowed: String },
     #[error("cannot write to {what} {path}: {reason}")]
@@ -202,6 +207,32 @@ pub fn encode_png(path: &Path, image: &RgbImage) -> Result<Vec<u8>, OutputError>
             source,
         })?;
     Ok(buf.into_inner())
+}
+
+/// An 8-bit RGB PNG carrying `text` as tEXt chunks (keyword, value): settings a viewer
+/// needs travel with the image even when run.json stays behind.
+pub fn encode_png_with_text(
+    path: &Path,
+    image: &RgbImage,
+    text: &[(&str, String)],
+) -> Result<Vec<u8>, OutputError> {
+    let err = |source| OutputError::EncodePng {
+        path: path.into(),
+        source,
+    };
+    let mut buf = Vec::new();
+    let mut encoder = png::Encoder::new(&mut buf, image.width(), image.height());
+    encoder.set_color(png::ColorType::Rgb);
+    encoder.set_depth(png::BitDepth::Eight);
+    for (keyword, value) in text {
+        encoder
+            .add_text_chunk((*keyword).into(), value.clone())
+            .map_err(err)?;
+    }
+    let mut writer = encoder.write_header().map_err(err)?;
+    writer.write_image_data(image.as_raw()).map_err(err)?;
+    writer.finish().map_err(err)?;
+    Ok(buf)
 }
 
 /// Writes `bytes` to `path` through a temporary file in the same directory and a rename,

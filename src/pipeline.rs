@@ -14,7 +14,7 @@ use crate::output::{self, OutputError, Staging};
 use crate::photo::{Photo, PhotoError, SrgbImage};
 use crate::record::{
     BoardRecord, DepthRecord, FileDepthRecord, FileRecord, Geometry, Inputs, PhotoRecord,
-    RunRecord, Setting, Timings, Versions, ViewRecord,
+    RgbdRecord, RunRecord, Setting, Timings, Versions, ViewRecord,
 };
 use crate::relocate::{self, RelocateError, Relocator};
 use crate::reshade::{ReshadeError, Reshader, TrainingFrame};
@@ -62,6 +62,8 @@ pub enum Product {
     Quilt,
     Panel,
     Sbs,
+    /// The photo beside its depth (`rgbd.png`), for RGB-D viewers.
+    Rgbd,
 }
 
 /// Where a scene's depth comes from.
@@ -284,6 +286,17 @@ pub fn render(
 
     let mut staging = Staging::new(&opts.out_dir)?;
     write_products(opts, &views, sbs_pair, &mut staging, &mut t)?;
+    let rgbd = if opts.wants(Product::Rgbd) {
+        Some(write_rgbd(
+            &fitted,
+            focus,
+            depthiness,
+            &mut staging,
+            &mut t,
+        )?)
+    } else {
+        None
+    };
     let mut inputs = scene.inputs()?;
     inputs.board_file = file_record(opts.board_file.as_deref())?;
     inputs.calibration = file_record(opts.calibration.as_deref())?;
@@ -303,6 +316,7 @@ pub fn render(
         reshade: reshader.description(),
         relocate: relocator.description(),
         blend: Some(format!("{:?}", opts.blend).to_lowercase()),
+        rgbd,
         outputs: Vec::new(),
         timings_ms: t,
         versions: Versions::default(),
@@ -370,6 +384,46 @@ fn write_products(
         stage_png("sbs.png", &sbs, t)?;
     }
     Ok(())
+}
+
+/// Stages `rgbd.png`: the fitted photo beside its depth, with the focus and depthiness of
+/// the views in its text chunks, so that an RGB-D viewer can show what the panel shows.
+fn write_rgbd(
+    fitted: &Fitted,
+    focus: f64,
+    depthiness: f64,
+    staging: &mut Staging,
+    t: &mut Timings,
+) -> Result<RgbdRecord, PipelineError> {
+    const FILE: &str = "rgbd.png";
+    let (image, span) = t.time("rgbd", || {
+        crate::rgbd::compose(&fitted.image, &fitted.depth)
+    });
+    let text = [
+        (
+            "Software",
+            format!("reshader {}", env!("CARGO_PKG_VERSION")),
+        ),
+        ("Description", "RGB-D: colour left, depth right".to_string()),
+        ("Focus", focus.to_string()),
+        ("Depthiness", depthiness.to_string()),
+        ("Depth near", span.near.to_string()),
+        ("Depth far", span.far.to_string()),
+        ("Depth encoding", crate::rgbd::ENCODING.to_string()),
+    ];
+    let bytes = t.time("encode", || {
+        output::encode_png_with_text(&staging.final_path(FILE), &image, &text)
+    })?;
+    t.time("write", || staging.write(FILE, &bytes))?;
+    Ok(RgbdRecord {
+        file: FILE.into(),
+        size: [fitted.image.width(), fitted.image.height()],
+        focus,
+        depthiness,
+        depth_near: span.near,
+        depth_far: span.far,
+        depth_encoding: crate::rgbd::ENCODING,
+    })
 }
 
 fn weave(

@@ -21,6 +21,8 @@ pub struct RunRecord {
     pub reshade: String,
     pub relocate: String,
     pub blend: Option<String>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub rgbd: Option<RgbdRecord>,
     pub outputs: Vec<String>,
     pub timings_ms: Timings,
     pub versions: Versions,
@@ -98,6 +100,19 @@ pub enum Setting {
     CommandLine,
     RobustMiddleDepth,
     ParallaxBudget,
+}
+
+/// The RGB-D image and the settings a viewer needs to show it as the panel does.
+#[derive(Debug, serde::Serialize)]
+pub struct RgbdRecord {
+    pub file: String,
+    /// Colour and depth sides, in pixels (the image is twice as wide).
+    pub size: [u32; 2],
+    pub focus: f64,
+    pub depthiness: f64,
+    pub depth_near: f64,
+    pub depth_far: f64,
+    pub depth_encoding: &'static str,
 }
 
 #[derive(Debug, serde::Serialize)]

@@ -49,6 +49,7 @@ fn render_without_depth_runs_the_shipped_network() {
         [
             "panel.png",
             "quilt_qs3x2a1.5.png",
+            "rgbd.png",
             "run.json",
             "sbs.png",
             "views"

@@ -11,6 +11,7 @@ use std::path::{Path, PathBuf};
 
 use serde::Deserialize;
 
+use crate::cells::{CellPattern, SubpixelCell, MAX_CELLS, MAX_CELL_OFFSET};
 use crate::mapping::{LensPhase, Mapping};
 
 /// Largest view count a board may declare; the weaving tables store view indices as bytes.
@@ -34,7 +35,7 @@ pub const LENS_PITCH_RANGE: (f64, f64) = (1e-2, 1e6);
 pub const MAX_TAN_SLANT: f64 = 1e3;
 
 /// The keys a Looking Glass `visual.json` may hold: those read here and those the
-/// runtime has no use for (serial, fringe, …). Any other key is refused with the
+/// weave has no use for (configVersion, serial, fringe, verticalAngle). Any other key is refused with the
 /// nearest of these, so that a misspelt `invVeiw` cannot pass silently.
 pub const VISUAL_JSON_KEYS: &[&str] = &[
     "configVersion",
@@ -71,6 +72,22 @@ const BUILTIN: &[(&str, &str)] = &[
         include_str!("../../boards/looking-glass-16-gen2.toml"),
     ),
     (
+        "looking-glass-16-spatial",
+        include_str!("../../boards/looking-glass-16-spatial.toml"),
+    ),
+    (
+        "looking-glass-16-spatial-portrait",
+        include_str!("../../boards/looking-glass-16-spatial-portrait.toml"),
+    ),
+    (
+        "looking-glass-32-spatial",
+        include_str!("../../boards/looking-glass-32-spatial.toml"),
+    ),
+    (
+        "looking-glass-32-spatial-portrait",
+        include_str!("../../boards/looking-glass-32-spatial-portrait.toml"),
+    ),
+    (
         "generic-8view",
         include_str!("../../boards/generic-8view.toml"),
     ),
@@ -85,6 +102,10 @@ const BUILTIN_NAMES: &[&str] = &[
     "looking-glass-portrait",
     "looking-glass-go",
     "looking-glass-16-gen2",
+    "looking-glass-16-spatial",
+    "looking-glass-16-spatial-portrait",
+    "looking-glass-32-spatial",
+    "looking-glass-32-spatial-portrait",
     "generic-8view",
     "generic-4view",
     "sbs-2view",
@@ -163,6 +184,13 @@ pub struct LookingGlass {
     /// Swaps the red and blue subpixel positions relative to the board's `subpixels`.
     #[serde(default)]
     pub flip_subp: bool,
+    /// Which of `subpixel_cells` each pixel uses (`CellPatternMode`, 0 to 4).
+    #[serde(default)]
+    pub cell_pattern: CellPattern,
+    /// Each colour subpixel's offset from its pixel centre (`subpixelCells`); empty for
+    /// a plain stripe of `subpixels`. When given, `subpixels` and `flip_subp` do not apply.
+    #[serde(default)]
+    pub subpixel_cells: Vec<SubpixelCell>,
 }
 
 /// Lens sheet in van Berkel's terms (slanted lenticular over an RGB stripe panel).
@@ -371,6 +399,10 @@ impl Board {
         set_if(&mut lg.flip_image_x, cal.flip_image_x);
         set_if(&mut lg.flip_image_y, cal.flip_image_y);
         set_if(&mut lg.flip_subp, cal.flip_subp);
+        set_if(&mut lg.cell_pattern, cal.cell_pattern);
+        if let Some(cells) = &cal.subpixel_cells {
+            lg.subpixel_cells.clone_from(cells);
+        }
         set_if(&mut self.width, cal.screen_w);
         set_if(&mut self.height, cal.screen_h);
         set_if(&mut self.view_cone_deg, cal.view_cone_deg);
@@ -454,6 +486,15 @@ impl Board {
     pub fn mapping(&self) -> Mapping {
         let (w, h) = (self.width, self.height);
         match &self.lens {
+            Lens::LookingGlass(lg) if !lg.subpixel_cells.is_empty() => Mapping::cells(
+                w,
+                h,
+                self.views,
+                LensPhase::looking_glass(lg, w, h),
+                lg.cell_pattern,
+                &lg.subpixel_cells,
+                (lg.flip_image_x, lg.flip_image_y),
+            ),
             Lens::LookingGlass(lg) => {
                 let layout = if lg.flip_subp {
                     self.subpixels.flipped()
@@ -479,6 +520,24 @@ impl Board {
             ),
             Lens::SideBySide => Mapping::side_by_side(w, h),
         }
+    }
+}
+
+/// The keys of one `subpixelCells` entry: each colour's offset in pixels.
+const CELL_KEYS: &[&str] = &[
+    "ROffsetX", "ROffsetY", "GOffsetX", "GOffsetY", "BOffsetX", "BOffsetY",
+];
+
+/// Why `key` is refused: the nearest of `known` when one is close, else all of them.
+fn unknown_key(key: &str, known: &[&str], holder: &str) -> String {
+    let nearest = known
+        .iter()
+        .map(|k| (edit_distance(&key.to_lowercase(), &k.to_lowercase()), *k))
+        .min()
+        .filter(|(d, _)| *d <= key.chars().count().max(3) / 2);
+    match nearest {
+        Some((_, k)) => format!("unknown key; did you mean `{k}`?"),
+        None => format!("unknown key; {holder} holds {}", known.join(", ")),
     }
 }
 
@@ -641,7 +700,31 @@ impl Validator<'_> {
         self.finite("looking_glass.center", lg.center)?;
         self.offset("looking_glass.center", lg.center)?;
         self.positive("looking_glass.dpi", lg.dpi)?;
-        self.within("looking_glass.dpi", lg.dpi, DPI_RANGE)
+        self.within("looking_glass.dpi", lg.dpi, DPI_RANGE)?;
+        self.cells("looking_glass.subpixel_cells", &lg.subpixel_cells)
+    }
+
+    fn cells(&self, field: &str, cells: &[SubpixelCell]) -> Result<(), BoardError> {
+        self.check(
+            cells.len() <= MAX_CELLS,
+            field,
+            &format!("at most {MAX_CELLS} cells, got {}", cells.len()),
+        )?;
+        for (i, cell) in cells.iter().enumerate() {
+            for (c, colour) in ["r", "g", "b"].iter().enumerate() {
+                for v in cell.offset(c) {
+                    self.check(
+                        v.is_finite() && v.abs() <= MAX_CELL_OFFSET,
+                        &format!("{field}[{i}].{colour}"),
+                        &format!(
+                            "offsets are in pixels, between -{MAX_CELL_OFFSET} and \
+                             {MAX_CELL_OFFSET}, got {v}"
+                        ),
+                    )?;
+                }
+            }
+        }
+        Ok(())
     }
 
     fn van_berkel(&self, vb: &VanBerkel) -> Result<(), BoardError> {
@@ -699,7 +782,7 @@ fn default_view_size(f: &BoardFile) -> (u32, u32) {
 /// A unit's calibration in Looking Glass Factory's `visual.json` form.
 ///
 /// `pitch`, `slope` and `center` are required; the other fields override the board only
-/// when present. Keys this library does not use (serial, fringe, …) are ignored; a key that is
+/// when present. Keys the weave does not use (serial, fringe, verticalAngle) are ignored; a key that is
 /// not a visual.json key at all is refused (see [`VISUAL_JSON_KEYS`]).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Calibration {
@@ -715,6 +798,9 @@ pub struct Calibration {
     pub flip_image_y: Option<bool>,
     pub flip_subp: Option<bool>,
     pub view_cone_deg: Option<f64>,
+    pub cell_pattern: Option<CellPattern>,
+    /// `Some(empty)` when the file lists no cells: a plain RGB stripe.
+    pub subpixel_cells: Option<Vec<SubpixelCell>>,
 }
 
 impl Calibration {
@@ -752,6 +838,8 @@ impl Calibration {
             flip_image_y: reader.flag("flipImageY")?,
             flip_subp: reader.flag("flipSubp")?,
             view_cone_deg: reader.number("viewCone")?,
+            cell_pattern: reader.cell_pattern("CellPatternMode")?,
+            subpixel_cells: reader.cells("subpixelCells")?,
         };
         cal.validate()?;
         Ok(cal)
@@ -798,25 +886,87 @@ impl CalReader<'_> {
 
     /// Refuses a key that is not a visual.json key, naming the nearest one.
     fn known_keys(&self) -> Result<(), BoardError> {
-        for key in self.obj.keys() {
-            if VISUAL_JSON_KEYS.contains(&key.as_str()) {
-                continue;
-            }
-            let nearest = VISUAL_JSON_KEYS
-                .iter()
-                .map(|k| (edit_distance(&key.to_lowercase(), &k.to_lowercase()), *k))
-                .min()
-                .filter(|(d, _)| *d <= key.chars().count().max(3) / 2);
-            let reason = match nearest {
-                Some((_, k)) => format!("unknown key; did you mean `{k}`?"),
-                None => format!(
-                    "unknown key; a visual.json holds {}",
-                    VISUAL_JSON_KEYS.join(", ")
-                ),
-            };
-            return Err(self.err(key, reason));
+        match self
+            .obj
+            .keys()
+            .find(|k| !VISUAL_JSON_KEYS.contains(&k.as_str()))
+        {
+            Some(key) => Err(self.err(key, unknown_key(key, VISUAL_JSON_KEYS, "a visual.json"))),
+            None => Ok(()),
         }
-        Ok(())
+    }
+
+    fn cell_pattern(&self, field: &str) -> Result<Option<CellPattern>, BoardError> {
+        let Some(mode) = self.number(field)? else {
+            return Ok(None);
+        };
+        u8::try_from(mode as i64)
+            .ok()
+            .filter(|_| mode.fract() == 0.0)
+            .and_then(|m| CellPattern::try_from(m).ok())
+            .map(Some)
+            .ok_or_else(|| self.err(field, format!("must be 0, 1, 2, 3 or 4, got {mode}")))
+    }
+
+    /// `subpixelCells`: a list of objects of six offsets in pixels, bare numbers.
+    fn cells(&self, field: &str) -> Result<Option<Vec<SubpixelCell>>, BoardError> {
+        let Some(value) = self.obj.get(field) else {
+            return Ok(None);
+        };
+        let list = value
+            .as_array()
+            .ok_or_else(|| self.err(field, format!("expected a list of cells, got {value}")))?;
+        if list.len() > MAX_CELLS {
+            return Err(self.err(
+                field,
+                format!("at most {MAX_CELLS} cells, got {}", list.len()),
+            ));
+        }
+        list.iter()
+            .enumerate()
+            .map(|(i, cell)| self.cell(&format!("{field}[{i}]"), cell))
+            .collect::<Result<Vec<_>, _>>()
+            .map(Some)
+    }
+
+    fn cell(&self, field: &str, value: &serde_json::Value) -> Result<SubpixelCell, BoardError> {
+        let obj = value.as_object().ok_or_else(|| {
+            self.err(
+                field,
+                format!(
+                    "expected an object of {}, got {value}",
+                    CELL_KEYS.join(", ")
+                ),
+            )
+        })?;
+        if let Some(key) = obj.keys().find(|k| !CELL_KEYS.contains(&k.as_str())) {
+            return Err(self.err(
+                &format!("{field}.{key}"),
+                unknown_key(key, CELL_KEYS, "a subpixel cell"),
+            ));
+        }
+        let offset = |key: &str| {
+            let name = format!("{field}.{key}");
+            let v = obj
+                .get(key)
+                .ok_or_else(|| self.err(&name, "missing (a cell gives all six offsets)"))?;
+            v.as_f64()
+                .filter(|x| x.is_finite() && x.abs() <= MAX_CELL_OFFSET)
+                .ok_or_else(|| {
+                    self.err(
+                        &name,
+                        format!(
+                            "expected an offset in pixels between -{MAX_CELL_OFFSET} and \
+                             {MAX_CELL_OFFSET}, got {v}"
+                        ),
+                    )
+                })
+        };
+        Ok(SubpixelCell {
+            r: [offset("ROffsetX")?, offset("ROffsetY")?],
+            g: [offset("GOffsetX")?, offset("GOffsetY")?],
+            b: [offset("BOffsetX")?, offset("BOffsetY")?],
+        })
     }
 
     fn raw(&self, field: &str) -> Result<Option<&serde_json::Value>, BoardError> {

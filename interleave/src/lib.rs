@@ -11,11 +11,13 @@
 //! See `README.md` beside this crate for the mapping's derivation and the board format.
 
 pub mod board;
+pub mod cells;
 pub mod mapping;
 pub mod quilt;
 pub mod weave;
 
 pub use board::{Board, BoardError, Calibration, Lens, LookingGlass, SubpixelLayout, VanBerkel};
+pub use cells::{CellPattern, SubpixelCell};
 pub use mapping::{LensPhase, Mapping};
 pub use quilt::{make_quilt, quilt_file_name, side_by_side, split_quilt};
 pub use weave::{Blend, WeaveError, Weaver};

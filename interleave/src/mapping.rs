@@ -15,6 +15,7 @@
 //! the two usual descriptions.
 
 use crate::board::{LookingGlass, SubpixelLayout, VanBerkel};
+use crate::cells::{CellPattern, SubpixelCell};
 
 /// Linear lens phase `a·k + b·y + d` (see the module docs).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -127,6 +128,13 @@ enum Kind {
         layout: SubpixelLayout,
         phase: LensPhase,
     },
+    /// Subpixels at the positions their cell gives: `phase` at `k = 3x` is the pixel
+    /// centre's phase, and `shifts[cell][c]` the phase from there to channel `c`.
+    Cells {
+        phase: LensPhase,
+        pattern: CellPattern,
+        shifts: Vec<[f64; 3]>,
+    },
     SideBySide,
 }
 
@@ -161,6 +169,43 @@ impl Mapping {
         }
     }
 
+    /// A slanted-lenticular mapping whose subpixels sit where `cells` put them.
+    ///
+    /// A subpixel `(dx, dy)` pixels from its pixel centre (dy upward) has the phase of the
+    /// centre plus `pitch'·(dx/W + tilt·dy/H)`; with `a = pitch'/(3W)` and
+    /// `b = −tilt·pitch'/H` (see [`LensPhase::looking_glass`]) that is `3a·dx − b·dy`.
+    pub fn cells(
+        width: u32,
+        height: u32,
+        views: u32,
+        phase: LensPhase,
+        pattern: CellPattern,
+        cells: &[SubpixelCell],
+        flip: (bool, bool),
+    ) -> Mapping {
+        let shifts = cells
+            .iter()
+            .map(|cell| {
+                [0, 1, 2].map(|c| {
+                    let [dx, dy] = cell.offset(c);
+                    3.0 * phase.per_subpixel * dx - phase.per_row * dy
+                })
+            })
+            .collect();
+        Mapping {
+            width,
+            height,
+            views: views as usize,
+            kind: Kind::Cells {
+                phase,
+                pattern,
+                shifts,
+            },
+            flip_x: flip.0,
+            flip_y: flip.1,
+        }
+    }
+
     /// Two views side by side, each squeezed into half the panel width.
     pub fn side_by_side(width: u32, height: u32) -> Mapping {
         Mapping {
@@ -184,7 +229,7 @@ impl Mapping {
     /// The lens phase, for lenticular boards.
     pub fn lens_phase(&self) -> Option<&LensPhase> {
         match &self.kind {
-            Kind::Lenticular { phase, .. } => Some(phase),
+            Kind::Lenticular { phase, .. } | Kind::Cells { phase, .. } => Some(phase),
             Kind::SideBySide => None,
         }
     }
@@ -195,6 +240,15 @@ impl Mapping {
             Kind::Lenticular { layout, phase } => {
                 let k = 3 * u64::from(x) + layout.position(c) as u64;
                 phase.cone_position(phase.phase(k as f64, f64::from(y)))
+            }
+            Kind::Cells {
+                phase,
+                pattern,
+                shifts,
+            } => {
+                let shift = shifts[pattern.cell(x, self.height - 1 - y, shifts.len())][c];
+                let k = 3 * u64::from(x);
+                phase.cone_position(phase.phase(k as f64, f64::from(y)) + shift)
             }
             // Cone positions at the two view centres, so blending never mixes the eyes.
             Kind::SideBySide if x < self.left_width() => 0.25,
@@ -217,6 +271,22 @@ impl Mapping {
                         // bit for bit with `cone_position`.
                         let value = phase.per_subpixel * (k0 + p) + row + phase.offset;
                         *t = phase.cone_position(value);
+                    }
+                }
+            }
+            Kind::Cells {
+                phase,
+                pattern,
+                shifts,
+            } => {
+                let row = phase.per_row * f64::from(y);
+                let y_up = self.height - 1 - y;
+                for (x, px) in out.chunks_exact_mut(3).enumerate() {
+                    let shift = &shifts[pattern.cell(x as u32, y_up, shifts.len())];
+                    // Same operation order as `cone_position`, bit for bit.
+                    let centre = phase.per_subpixel * (3.0 * x as f64) + row + phase.offset;
+                    for (t, s) in px.iter_mut().zip(shift) {
+                        *t = phase.cone_position(centre + s);
                     }
                 }
             }
@@ -247,7 +317,7 @@ impl Mapping {
                 (x - self.left_width(), self.width - self.left_width())
             }
             Kind::SideBySide => (x, self.left_width()),
-            Kind::Lenticular { .. } => (x, self.width),
+            Kind::Lenticular { .. } | Kind::Cells { .. } => (x, self.width),
         };
         let sx = scale_index(pos, span, view_w);
         if self.flip_x {

@@ -39,6 +39,22 @@ fn every_shipped_board_loads_with_its_documented_values() {
         ("looking-glass-portrait", (1536, 2048), 48, (8, 6), 40.0),
         ("looking-glass-go", (1440, 2560), 66, (11, 6), 54.0),
         ("looking-glass-16-gen2", (3840, 2160), 45, (5, 9), 40.0),
+        ("looking-glass-16-spatial", (3840, 2160), 49, (7, 7), 50.0),
+        (
+            "looking-glass-16-spatial-portrait",
+            (2160, 3840),
+            66,
+            (11, 6),
+            50.0,
+        ),
+        ("looking-glass-32-spatial", (7680, 4320), 49, (7, 7), 50.0),
+        (
+            "looking-glass-32-spatial-portrait",
+            (4320, 7680),
+            66,
+            (11, 6),
+            54.0,
+        ),
         ("generic-8view", (1920, 1080), 8, (4, 2), 30.0),
         ("generic-4view", (1920, 1080), 4, (2, 2), 20.0),
         ("sbs-2view", (1920, 1080), 2, (2, 1), 6.0),
@@ -68,6 +84,16 @@ fn looking_glass_boards_carry_the_issue_values() {
         ("looking-glass-portrait", 52.0, -7.0, 0.5, 324.0),
         ("looking-glass-go", 80.7, -6.3, -0.3, 491.0),
         ("looking-glass-16-gen2", 50.0, -7.0, 0.5, 283.0),
+        ("looking-glass-16-spatial", 44.72, -6.9, 0.5, 283.0),
+        (
+            "looking-glass-16-spatial-portrait",
+            44.72,
+            -7.45,
+            0.0,
+            283.0,
+        ),
+        ("looking-glass-32-spatial", 75.0, -7.2, -0.2, 280.0),
+        ("looking-glass-32-spatial-portrait", 80.7, -6.3, -0.3, 280.0),
     ];
     for (name, pitch, slope, center, dpi) in cases {
         let Lens::LookingGlass(lg) = Board::builtin(name).unwrap().lens().clone() else {

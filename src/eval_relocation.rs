@@ -12,7 +12,10 @@
 //!
 //! each once with the input's colours (relocation alone) and once with the rendered
 //! `reshaded.exr` (relocation + reshading, with the renderer's ground-truth reshading:
-//! an upper bound for the network). With reshaded colours the LDI is also scored with
+//! an upper bound for the network). The LDI is also scored with the colours of the
+//! reshading model (`--model`, as `render` takes it; the shipped one by default): the
+//! full novel view the runtime would show, against relocation alone. With the rendered
+//! reshaded colours the LDI is also scored with
 //! its background band keeping the colours inpainted from the input
 //! ([`BandColours::Inpainted`]) instead of taking them from the view's reshaded image. PSNR and SSIM are computed against `novel.exr`
 //! over valid pixels (mask.png), split into pixels the input sees (the LDI renders them
@@ -28,6 +31,9 @@ use crate::depth::{read_raw, DepthMap};
 use crate::ldi::{view_reach, BandColours, Border, Ldi, LdiConfig};
 use crate::photo::SrgbImage;
 use crate::relocate::{BorderArg, MeshWarp, RelocateError, Relocator};
+use crate::reshade::{ReshadeError, Reshader};
+use crate::reshade_net::cli::ReshadeArgs;
+use crate::reshade_net::NetError;
 use crate::views::{Intrinsics, ViewCamera};
 
 /// Images per row of a contact sheet.
@@ -38,6 +44,10 @@ pub const SKY_DEPTH: f32 = 1000.0;
 
 #[derive(Debug, thiserror::Error)]
 pub enum EvalError {
+    #[error("reshading model: {0}")]
+    Model(#[from] NetError),
+    #[error("{id}: {source}")]
+    Reshade { id: String, source: ReshadeError },
     #[error("cannot read {path}: {source}")]
     Io {
         path: PathBuf,
@@ -96,6 +106,32 @@ pub struct EvalArgs {
     /// in magenta over the LDI view).
     #[arg(long)]
     pub sheets: Option<PathBuf>,
+    /// The reshading model whose colours the LDI also relocates (`--model none`: the
+    /// input's, which repeats the relocation-alone row).
+    #[command(flatten)]
+    pub reshade: ReshadeArgs,
+}
+
+/// Where a method's colours come from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Colours {
+    /// The input photo's: relocation alone.
+    Input,
+    /// The renderer's ground-truth reshaded image: an upper bound for any network.
+    Truth,
+    /// The reshading model's, as the runtime computes them.
+    Network,
+}
+
+impl Colours {
+    fn label(self) -> &'static str {
+        match self {
+            Colours::Input => "input",
+            Colours::Truth => "reshaded (rendered GT)",
+            Colours::Network => "reshaded (network)",
+        }
+    }
 }
 
 /// PSNR (dB) and SSIM over one region; `None` when the region is empty.
@@ -109,7 +145,7 @@ pub struct Score {
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct MethodScore {
     pub method: &'static str,
-    pub reshaded: bool,
+    pub colours: Colours,
     pub all: Score,
     pub visible: Score,
     pub disoccluded: Score,
@@ -141,17 +177,18 @@ struct Example {
 /// the per-example reports.
 pub fn run(args: &EvalArgs) -> Result<Vec<ExampleReport>, EvalError> {
     let dirs = example_dirs(&args.data, args.limit)?;
+    let reshader = args.reshade.build()?;
     let mut reports = Vec::new();
     for dir in &dirs {
         let example = load_example(dir, args.exposure, args.gamma)?;
-        let (report, sheet) = evaluate(&example, args.border.into())?;
+        let (report, sheet) = evaluate(&example, args.border.into(), reshader.as_ref())?;
         log::info!("{}: {:?}", report.id, report.scores);
         if let Some(out) = &args.sheets {
             write_sheet(out, &report.id, &sheet)?;
         }
         reports.push(report);
     }
-    println!("{}", table(&reports, args));
+    println!("{}", table(&reports, args, &reshader.description()));
     if let Some(path) = &args.json {
         let json = serde_json::to_vec_pretty(&reports).expect("reports serialise");
         crate::output::write_atomic(path, &json).map_err(|e| EvalError::Meta {
@@ -280,11 +317,23 @@ fn load_hdr(path: &Path, exposure: f32, gamma: f32) -> Result<SrgbImage, EvalErr
 }
 
 /// Scores every method on one example; also returns the relocation-alone images for a sheet.
-fn evaluate(ex: &Example, border: Border) -> Result<(ExampleReport, Vec<SrgbImage>), EvalError> {
+/// The dataset's depth and offsets are already in training units.
+fn evaluate(
+    ex: &Example,
+    border: Border,
+    reshader: &dyn Reshader,
+) -> Result<(ExampleReport, Vec<SrgbImage>), EvalError> {
     let fail = |source| EvalError::Relocate {
         id: ex.id.clone(),
         source,
     };
+    let network = reshader
+        .prepare(&ex.input, &ex.depth, &ex.source)
+        .and_then(|photo| photo.reshade(ex.offset))
+        .map_err(|source| EvalError::Reshade {
+            id: ex.id.clone(),
+            source,
+        })?;
     let view = ViewCamera {
         centre: ex.offset,
         intrinsics: ex.source,
@@ -327,6 +376,7 @@ fn evaluate(ex: &Example, border: Border) -> Result<(ExampleReport, Vec<SrgbImag
         .render(&ex.reshaded, &ex.depth, &ex.source, &view)
         .map_err(fail)?;
     let ldi_reshaded = ldi.render(&ex.reshaded, &view).map_err(fail)?;
+    let ldi_network = ldi.render(&network, &view).map_err(fail)?;
     let inpainted_config = LdiConfig {
         band_colours: BandColours::Inpainted,
         ..config
@@ -340,23 +390,28 @@ fn evaluate(ex: &Example, border: Border) -> Result<(ExampleReport, Vec<SrgbImag
     )
     .and_then(|l| l.render(&ex.reshaded, &view))
     .map_err(fail)?;
-    let predictions: [(&'static str, bool, &SrgbImage); 7] = [
-        ("input", false, &ex.input),
-        ("input", true, &ex.reshaded),
-        ("mesh-warp", false, &warp_plain),
-        ("mesh-warp", true, &warp_reshaded),
-        ("ldi", false, &plain.image),
-        ("ldi", true, &ldi_reshaded),
-        ("ldi, band keeps inpainted colours", true, &ldi_inpainted),
+    let predictions: [(&'static str, Colours, &SrgbImage); 8] = [
+        ("input", Colours::Input, &ex.input),
+        ("input", Colours::Truth, &ex.reshaded),
+        ("mesh-warp", Colours::Input, &warp_plain),
+        ("mesh-warp", Colours::Truth, &warp_reshaded),
+        ("ldi", Colours::Input, &plain.image),
+        ("ldi", Colours::Truth, &ldi_reshaded),
+        (
+            "ldi, band keeps inpainted colours",
+            Colours::Truth,
+            &ldi_inpainted,
+        ),
+        ("ldi", Colours::Network, &ldi_network),
     ];
     let scores = predictions
         .iter()
-        .map(|&(method, reshaded, prediction)| {
+        .map(|&(method, colours, prediction)| {
             let ssim = ssim_map(prediction, &ex.novel);
             let score = |mask: &[bool]| region_score(prediction, &ex.novel, &ssim, mask);
             MethodScore {
                 method,
-                reshaded,
+                colours,
                 all: score(&ex.valid),
                 visible: score(&visible),
                 disoccluded: score(&disoccluded),
@@ -384,6 +439,22 @@ fn evaluate(ex: &Example, border: Border) -> Result<(ExampleReport, Vec<SrgbImag
         mesh_warp_render_ms,
     };
     Ok((report, sheet))
+}
+
+/// Per example, the PSNR of the LDI with the network's colours minus the LDI with the
+/// input's (over valid pixels); `None` when no example has both.
+pub fn network_gain(reports: &[ExampleReport]) -> Option<Vec<f64>> {
+    let psnr = |r: &ExampleReport, colours| {
+        r.scores
+            .iter()
+            .find(|s| s.method == "ldi" && s.colours == colours)
+            .and_then(|s| s.all.psnr)
+    };
+    let gains: Vec<f64> = reports
+        .iter()
+        .filter_map(|r| Some(psnr(r, Colours::Network)? - psnr(r, Colours::Input)?))
+        .collect();
+    (!gains.is_empty()).then_some(gains)
 }
 
 /// `image` with the pixels of `mask` tinted magenta.
@@ -506,10 +577,11 @@ fn write_sheet(dir: &Path, id: &str, images: &[SrgbImage]) -> Result<(), EvalErr
     crate::output::write_atomic(&path, &bytes).map_err(|e| io(e.to_string()))
 }
 
-/// The Table-1-style summary: mean PSNR / SSIM per method over all examples.
-pub fn table(reports: &[ExampleReport], args: &EvalArgs) -> String {
+/// The Table-1-style summary: mean PSNR / SSIM per method over all examples, then what
+/// the reshading model adds to the LDI's novel views.
+pub fn table(reports: &[ExampleReport], args: &EvalArgs, model: &str) -> String {
     let mut out = format!(
-        "{} examples, tone mapping x{} gamma {}, LDI border {:?}; PSNR dB / SSIM against the ground-truth novel view\n\n",
+        "{} examples, tone mapping x{} gamma {}, LDI border {:?}, reshading model {model}; PSNR dB / SSIM against the ground-truth novel view\n\n",
         reports.len(),
         args.exposure,
         args.gamma,
@@ -533,21 +605,24 @@ pub fn table(reports: &[ExampleReport], args: &EvalArgs) -> String {
                 _ => "–".into(),
             }
         };
-        let colours = if s.reshaded {
-            "reshaded (rendered GT)"
-        } else {
-            "input"
-        };
         out.push_str(&format!(
             "| {} | {} | {} | {} | {} |\n",
             s.method,
-            colours,
+            s.colours.label(),
             mean(|m| m.all),
             mean(|m| m.visible),
             mean(|m| m.disoccluded)
         ));
     }
     let n = reports.len() as f64;
+    if let Some(gain) = network_gain(reports) {
+        out.push_str(&format!(
+            "\nreshading in full novel views (LDI + network against LDI alone, valid pixels): {:+.2} dB mean over {} examples, {} improved\n",
+            gain.iter().sum::<f64>() / gain.len() as f64,
+            gain.len(),
+            gain.iter().filter(|&&g| g > 0.0).count()
+        ));
+    }
     out.push_str(&format!(
         "\nLDI build {:.1} ms, LDI render {:.1} ms/view, mesh-warp render {:.1} ms/view (means, {}x{})\n",
         reports.iter().map(|r| r.ldi_build_ms).sum::<f64>() / n,

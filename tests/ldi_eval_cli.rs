@@ -66,7 +66,7 @@ fn write_example(dir: &Path, offset: [f64; 3]) {
     std::fs::write(dir.join("meta.json"), meta.to_string()).unwrap();
 }
 
-fn mean_psnr(reports: &serde_json::Value, method: &str, reshaded: bool, region: &str) -> f64 {
+fn mean_psnr(reports: &serde_json::Value, method: &str, colours: &str, region: &str) -> f64 {
     let examples = reports.as_array().unwrap();
     let sum: f64 = examples
         .iter()
@@ -75,7 +75,7 @@ fn mean_psnr(reports: &serde_json::Value, method: &str, reshaded: bool, region: 
                 .as_array()
                 .unwrap()
                 .iter()
-                .find(|s| s["method"] == method && s["reshaded"] == reshaded)
+                .find(|s| s["method"] == method && s["colours"] == colours)
                 .unwrap()[region]["psnr"]
                 .as_f64()
                 .unwrap()
@@ -94,9 +94,9 @@ fn eval_relocation_scores_the_relocators_and_writes_contact_sheets() {
     std::fs::create_dir_all(data.join("partial")).unwrap();
     let (sheets, json) = (dir.path().join("sheets"), dir.path().join("eval.json"));
     let out = Command::new(env!("CARGO_BIN_EXE_reshader"))
-        .env("RESHADER_MODEL", "none")
         .arg("eval-relocation")
         .arg(&data)
+        .args(["--model", "none"])
         .arg("--sheets")
         .arg(&sheets)
         .arg("--json")
@@ -122,15 +122,24 @@ fn eval_relocation_scores_the_relocators_and_writes_contact_sheets() {
     let reports: serde_json::Value =
         serde_json::from_slice(&std::fs::read(&json).unwrap()).unwrap();
     assert_eq!(reports.as_array().unwrap().len(), 2);
-    let input = mean_psnr(&reports, "input", true, "all");
-    let ldi = mean_psnr(&reports, "ldi", true, "all");
-    let mesh = mean_psnr(&reports, "mesh-warp", true, "all");
+    let input = mean_psnr(&reports, "input", "truth", "all");
+    let ldi = mean_psnr(&reports, "ldi", "truth", "all");
+    let mesh = mean_psnr(&reports, "mesh-warp", "truth", "all");
     assert!(ldi > input + 6.0, "ldi {ldi} dB vs input {input} dB");
     assert!(mesh > input + 3.0, "mesh {mesh} dB vs input {input} dB");
     // With the right colours the pixels the input sees are (nearly) exact.
-    assert!(mean_psnr(&reports, "ldi", true, "visible") > 30.0);
+    assert!(mean_psnr(&reports, "ldi", "truth", "visible") > 30.0);
     // The reshaded colours are the novel view's: relocating them beats relocating the input's.
-    assert!(ldi > mean_psnr(&reports, "ldi", false, "all"));
+    let alone = mean_psnr(&reports, "ldi", "input", "all");
+    assert!(ldi > alone);
+    // With --model none the network's colours are the input's: the same view, no gain.
+    assert_eq!(mean_psnr(&reports, "ldi", "network", "all"), alone);
+    assert!(
+        stdout.contains("reshading model identity (no model)")
+            && stdout.contains("| ldi | reshaded (network) |")
+            && stdout.contains("LDI + network against LDI alone, valid pixels): +0.00 dB"),
+        "{stdout}"
+    );
 
     for id in ["a", "b"] {
         let sheet = image::open(sheets.join(format!("{id}.png"))).unwrap();
@@ -154,4 +163,52 @@ fn eval_relocation_names_a_folder_without_examples() {
         stderr.contains("no complete examples") && stderr.contains(&*dir.path().to_string_lossy()),
         "{stderr}"
     );
+}
+
+/// The lobe-head fixture (random weights, so no claim about its gain) runs through the
+/// same rows: what the runtime would show is scored, and a model that fails to load is
+/// named before any example is read.
+#[test]
+fn eval_relocation_scores_a_reshading_model_and_refuses_a_missing_one() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("val");
+    write_example(&data.join("a"), [0.1, 0.0, 0.0]);
+    let json = dir.path().join("eval.json");
+    let fixture = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/models/fixtures/reshade-fixture-fp32-lobes.json"
+    );
+    let out = Command::new(env!("CARGO_BIN_EXE_reshader"))
+        .arg("eval-relocation")
+        .arg(&data)
+        .args(["--model", fixture, "--json"])
+        .arg(&json)
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{stdout}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(
+        stdout.contains("reshading model") && stdout.contains("lobe"),
+        "{stdout}"
+    );
+    let reports: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(&json).unwrap()).unwrap();
+    let network = mean_psnr(&reports, "ldi", "network", "all");
+    assert!(network.is_finite() && network > 10.0, "{network}");
+
+    let missing = dir.path().join("no-such-model.json");
+    let out = Command::new(env!("CARGO_BIN_EXE_reshader"))
+        .arg("eval-relocation")
+        .arg(&data)
+        .arg("--model")
+        .arg(&missing)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{stderr}");
+    assert!(stderr.contains("no-such-model.json"), "{stderr}");
 }

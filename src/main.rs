@@ -133,8 +133,9 @@ Examples:
       --board looking-glass-portrait --out out/";
 
 const RESHADE_ABOUT: &str = "\
-Reshade the photo as seen from --camera, keeping the input camera's frame.
-Until a reshading model is shipped this returns the photo unchanged (and says so).
+Reshade the photo as seen from --camera, keeping the input camera's frame: the pixels
+stay where they are and only their shading changes (highlights slide). With --model none
+the photo comes back unchanged.
 
 Examples:
   reshader reshade photo.jpg --camera 0.1,0,0 --out reshaded.png

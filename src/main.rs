@@ -79,6 +79,9 @@ enum Command {
     /// Render the novel view from one camera position.
     #[command(long_about = VIEW_ABOUT)]
     View(ViewArgs),
+    /// One picture of what reshading does to a photo on a board's outermost views.
+    #[command(long_about = SHEET_ABOUT)]
+    Sheet(SheetArgs),
     /// Weave a directory of views (view_00.png …) into a panel frame.
     Weave(WeaveArgs),
     /// List the built-in boards.
@@ -140,6 +143,19 @@ the photo comes back unchanged.
 Examples:
   reshader reshade photo.jpg --camera 0.1,0,0 --out reshaded.png
   reshader reshade photo.jpg --depth depth.npy --camera 0.1,0,0 --out reshaded.png";
+
+const SHEET_ABOUT: &str = "\
+One picture of what reshading does to a photo on a board. Top row: the photo reshaded
+for the board's leftmost view, the photo, reshaded for the rightmost view (all in the
+photo's own frame, so only the shading differs); bottom row: the leftmost view, the
+difference of the two reshaded images x4, the rightmost view, as the panel shows them.
+A highlight that slides between the views shows in the middle as a bright pair of
+crescents. The views' cameras, zero-parallax depth and depthiness are render's; the
+command prints the outermost offsets and how much of the picture the shading changes.
+
+Examples:
+  reshader sheet photo.jpg --board looking-glass-go --out sheet.png
+  reshader sheet photo.jpg --board looking-glass-go --model none --out unshaded.png";
 
 const VIEW_ABOUT: &str = "\
 Render the novel view from --camera: reshade (unless --no-reshade), then relocate the
@@ -255,6 +271,23 @@ struct ViewArgs {
 }
 
 #[derive(Args)]
+struct SheetArgs {
+    #[command(flatten)]
+    scene: SceneArgs,
+    #[command(flatten)]
+    relocate: RelocateArgs,
+    /// Built-in board name (see `reshader boards`) or path of a board .toml file.
+    #[arg(long, default_value = "looking-glass-go")]
+    board: String,
+    /// Scales the camera baseline, as `render --depthiness`.
+    #[arg(long, allow_negative_numbers = true)]
+    depthiness: Option<f64>,
+    /// Output image (.png).
+    #[arg(long)]
+    out: PathBuf,
+}
+
+#[derive(Args)]
 struct WeaveArgs {
     /// Directory holding view_00.png … view_{N-1}.png.
     view_dir: PathBuf,
@@ -343,6 +376,7 @@ fn run(command: Command) -> Result<()> {
         }
         Command::Reshade(args) => reshade(args),
         Command::View(args) => view(args),
+        Command::Sheet(args) => sheet(args),
         Command::Weave(args) => weave(args),
         Command::Convert(args) => Ok(reshader::gallery::cli::run_convert(&args)?),
         Command::Watch(args) => Ok(reshader::gallery::cli::run_watch(&args)?),
@@ -498,6 +532,40 @@ fn view(args: ViewArgs) -> Result<()> {
         .map(|r| r as &dyn reshader::reshade::Reshader);
     let image = pipeline::render_view(&req, reshader, &*args.relocate.build())?;
     pipeline::write_image(&single.out, &image)?;
+    Ok(())
+}
+
+fn sheet(args: SheetArgs) -> Result<()> {
+    output::FileFormat::require(&args.out, &[output::FileFormat::Png])?;
+    output::check_output_file(&args.out)?;
+    check_model(&args.scene.reshade)?;
+    check_single_view_memory(&args.scene, true)?;
+    let board = pipeline::load_board(&args.board, None)?;
+    if let Some(d) = args.depthiness {
+        reshader::views::check_depthiness(d)?;
+    }
+    let scene = load_scene(&args.scene)?;
+    let reshader = args.scene.reshade.build()?;
+    let relocator = args.relocate.build();
+    let sheet = pipeline::sheet::outer_views(
+        &scene,
+        &board,
+        args.scene.focus,
+        args.depthiness,
+        &*reshader,
+        &*relocator,
+    )?;
+    let bytes = output::encode_png(&args.out, &sheet.image)?;
+    output::write_atomic(&args.out, &bytes)?;
+    println!(
+        "{}: {} views {:+.3} and {:+.3} (depth-map units); the shading changes {:.1}% of the pixels by more than one 8-bit level, mean |difference| {:.4}",
+        args.out.display(),
+        board.name(),
+        sheet.offsets[0],
+        sheet.offsets[1],
+        100.0 * sheet.changed_share,
+        sheet.mean_change
+    );
     Ok(())
 }
 

@@ -2,6 +2,8 @@
 //! Every input is read and validated before anything is written, and all files of a run
 //! are staged and moved into place together.
 
+pub mod sheet;
+
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
@@ -16,7 +18,7 @@ use crate::record::{
     BoardRecord, DepthRecord, FileDepthRecord, FileRecord, Geometry, Inputs, PhotoRecord,
     RgbdRecord, RunRecord, Setting, Timings, Versions, ViewRecord,
 };
-use crate::relocate::{self, RelocateError, Relocator};
+use crate::relocate::{self, PreparedRelocation, RelocateError, Relocator};
 use crate::reshade::{ReshadeError, Reshader, TrainingFrame};
 use crate::views::{robust_focus, robust_range, Intrinsics, ViewCamera, ViewError, ViewRig};
 
@@ -268,18 +270,14 @@ pub fn render(
     let sbs_pair = opts.sbs_pair()?;
     let board = &opts.board;
     let scene = Scene::load(&opts.photo, &opts.depth, opts.fov, &mut t)?;
-    let (focus, focus_source) = scene.focus(opts.focus);
     let (vw, vh) = board.view_size();
     let fitted = t.time("fit", || scene.fitted(vw, vh));
-    let cone = f64::from(board.view_cone_deg());
-    let (depthiness, depthiness_source) = match opts.depthiness {
-        Some(d) => (d, Setting::CommandLine),
-        None => (
-            ViewRig::fitting_depthiness(cone, focus, robust_range(&scene.depth), &fitted.reference),
-            Setting::ParallaxBudget,
-        ),
-    };
-    let rig = ViewRig::new(board.views(), cone, focus, depthiness)?;
+    let BoardRig {
+        rig,
+        focus_source,
+        depthiness_source,
+    } = BoardRig::new(&scene, board, &fitted, opts.focus, opts.depthiness)?;
+    let (focus, depthiness) = (rig.focus, rig.depthiness);
     let cameras = rig.cameras(&fitted.reference);
     let frame = TrainingFrame::for_focus(focus);
     let views = render_views(&fitted, &cameras, frame, reshader, relocator, &mut t)?;
@@ -324,14 +322,54 @@ pub fn render(
     commit_with_record(staging, record)
 }
 
-fn render_views(
+/// A board's view rig for a scene, as `render` chooses it: the zero-parallax depth and
+/// the depthiness given, else the robust middle depth and the parallax budget's.
+pub struct BoardRig {
+    pub rig: ViewRig,
+    pub focus_source: Setting,
+    pub depthiness_source: Setting,
+}
+
+impl BoardRig {
+    pub fn new(
+        scene: &Scene,
+        board: &Board,
+        fitted: &Fitted,
+        focus: Option<f64>,
+        depthiness: Option<f64>,
+    ) -> Result<Self, PipelineError> {
+        let (focus, focus_source) = scene.focus(focus);
+        let cone = f64::from(board.view_cone_deg());
+        let (depthiness, depthiness_source) = match depthiness {
+            Some(d) => (d, Setting::CommandLine),
+            None => (
+                ViewRig::fitting_depthiness(
+                    cone,
+                    focus,
+                    robust_range(&scene.depth),
+                    &fitted.reference,
+                ),
+                Setting::ParallaxBudget,
+            ),
+        };
+        Ok(Self {
+            rig: ViewRig::new(board.views(), cone, focus, depthiness)?,
+            focus_source,
+            depthiness_source,
+        })
+    }
+}
+
+/// Each camera's reshaded colours (still in the input camera's frame, in camera order),
+/// and the relocation prepared for them.
+pub fn reshade_views<'a>(
     fitted: &Fitted,
     cameras: &[ViewCamera],
     frame: TrainingFrame,
     reshader: &dyn Reshader,
-    relocator: &dyn Relocator,
+    relocator: &'a dyn Relocator,
     t: &mut Timings,
-) -> Result<Vec<RgbImage>, PipelineError> {
+) -> Result<(Vec<SrgbImage>, Box<dyn PreparedRelocation + 'a>), PipelineError> {
     let training_depth = frame.depth(&fitted.depth);
     let prepared = t.time("reshade_prepare", || {
         reshader.prepare(&fitted.image, &training_depth, &fitted.source)
@@ -342,6 +380,18 @@ fn render_views(
     })?;
     let centres: Vec<[f64; 3]> = cameras.iter().map(|c| frame.camera(c.centre)).collect();
     let reshaded = t.time("reshade", || prepared.reshade_all(&centres))?;
+    Ok((reshaded, relocation))
+}
+
+fn render_views(
+    fitted: &Fitted,
+    cameras: &[ViewCamera],
+    frame: TrainingFrame,
+    reshader: &dyn Reshader,
+    relocator: &dyn Relocator,
+    t: &mut Timings,
+) -> Result<Vec<RgbImage>, PipelineError> {
+    let (reshaded, relocation) = reshade_views(fitted, cameras, frame, reshader, relocator, t)?;
     let mut views = Vec::with_capacity(cameras.len());
     for (colours, camera) in reshaded.into_iter().zip(cameras) {
         let view = t.time("relocate", || relocation.render(&colours, camera))?;

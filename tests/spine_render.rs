@@ -366,3 +366,53 @@ fn an_output_directory_holds_exactly_one_runs_products() {
     assert!(files[0].starts_with("quilt_qs2x3"), "{files:?}");
     assert_eq!(files[1], "run.json");
 }
+
+/// `sheet` lays out what reshading does: with no model the two reshaded images are the
+/// photo and their difference is black; its outer views are render's outermost views.
+#[test]
+fn sheet_shows_the_outermost_views_and_their_shading_difference() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("render");
+    render_tiny(&out, &["--only", "views"]);
+    let photo = tmp.path().join("photo.png").display().to_string();
+    let depth = tmp.path().join("depth.npy").display().to_string();
+    let sheet_path = tmp.path().join("sheet.png");
+    let sheet_s = sheet_path.display().to_string();
+    let board = tiny_board();
+    let args = [
+        "sheet",
+        &photo,
+        "--depth",
+        &depth,
+        "--board",
+        &board,
+        "--focus",
+        "2",
+        "--depthiness",
+        "0.5",
+        "--out",
+        &sheet_s,
+    ];
+    let result = run(&args);
+    assert!(result.status.success(), "{}", stderr(&result));
+    let stdout = String::from_utf8_lossy(&result.stdout);
+    assert!(stdout.contains("changes 0.0% of the pixels"), "{stdout}");
+    let sheet = load(&sheet_path);
+    let (left, right) = (
+        load(&out.join("views/view_00.png")),
+        load(&out.join(format!("views/view_{:02}.png", VIEWS - 1))),
+    );
+    let (cw, ch) = (sheet.width() / 3, sheet.height() / 2);
+    assert_eq!((cw, ch), left.dimensions());
+    let cell = |col: u32, row: u32| {
+        image::imageops::crop_imm(&sheet, col * cw, row * ch, cw, ch).to_image()
+    };
+    assert!(cell(0, 1) == left && cell(2, 1) == right);
+    assert!(cell(1, 1).pixels().all(|p| p.0 == [0, 0, 0]));
+    // Unwritable or wrong-format outputs are refused before any work.
+    let bad = tmp.path().join("sheet.jpg").display().to_string();
+    let mut wrong = args;
+    wrong[args.len() - 1] = &bad;
+    let result = run(&wrong);
+    assert_eq!(result.status.code(), Some(1), "{}", stderr(&result));
+}

@@ -229,9 +229,8 @@ struct RenderArgs {
     /// view width].
     #[arg(long, allow_negative_numbers = true)]
     depthiness: Option<f64>,
-    /// Subpixels between two views' centres: the nearest view, or a linear mix.
-    #[arg(long, value_enum, default_value_t = BlendArg::Nearest)]
-    blend: BlendArg,
+    #[command(flatten)]
+    filter: FilterArgs,
     /// Write only these products (comma-separated); run.json is always written.
     #[arg(long, value_enum, value_delimiter = ',')]
     only: Vec<Product>,
@@ -295,17 +294,44 @@ struct WeaveArgs {
     board: String,
     #[arg(long)]
     calibration: Option<PathBuf>,
-    #[arg(long, value_enum, default_value_t = BlendArg::Nearest)]
-    blend: BlendArg,
+    #[command(flatten)]
+    filter: FilterArgs,
     /// Output panel image (.png).
     #[arg(long)]
     out: PathBuf,
+}
+
+/// How views are filtered when weaving; each option overrides the board's `[filter]`.
+#[derive(Args)]
+struct FilterArgs {
+    /// Subpixels between view centres: the nearest view, a linear mix of the two nearest,
+    /// or a Gaussian over the three nearest [default: the board's, else nearest].
+    #[arg(long, value_enum)]
+    blend: Option<BlendArg>,
+    /// Darken this fraction of the view cone at each end (0 to 0.5), so that the jump
+    /// where the cone wraps shows as a dark seam [default: the board's, else 0].
+    #[arg(long, value_name = "FRACTION")]
+    dim_edges: Option<f64>,
+}
+
+impl FilterArgs {
+    fn apply(&self, board: &mut Board) -> Result<()> {
+        let mut filter = board.filter();
+        if let Some(blend) = self.blend {
+            filter.blend = blend.into();
+        }
+        if let Some(dim) = self.dim_edges {
+            filter.dim_edges = dim;
+        }
+        Ok(board.set_filter(filter)?)
+    }
 }
 
 #[derive(Clone, Copy, ValueEnum)]
 enum BlendArg {
     Nearest,
     Linear,
+    Gaussian,
 }
 
 impl From<BlendArg> for Blend {
@@ -313,6 +339,7 @@ impl From<BlendArg> for Blend {
         match b {
             BlendArg::Nearest => Blend::Nearest,
             BlendArg::Linear => Blend::Linear,
+            BlendArg::Gaussian => Blend::Gaussian,
         }
     }
 }
@@ -412,7 +439,8 @@ fn render(args: RenderArgs) -> Result<()> {
         reshader::views::check_depthiness(depthiness)?;
     }
     check_model(&args.scene.reshade)?;
-    let board = pipeline::load_board(&args.board, args.calibration.as_deref())?;
+    let mut board = pipeline::load_board(&args.board, args.calibration.as_deref())?;
+    args.filter.apply(&mut board)?;
     // The memory the sizes imply, before anything large is allocated. A photo whose
     // header cannot be read is reported by loading it; its board still counts.
     let photo_size = reshader::photo::header_size(&args.scene.photo).unwrap_or((1, 1));
@@ -420,7 +448,6 @@ fn render(args: RenderArgs) -> Result<()> {
         photo_size,
         &board,
         &args.only,
-        matches!(args.blend, BlendArg::Linear),
         &args.scene.reshade,
         !matches!(args.scene.depth, DepthInput::File(_)),
     );
@@ -451,7 +478,6 @@ fn render(args: RenderArgs) -> Result<()> {
         calibration: args.calibration,
         focus: args.scene.focus,
         depthiness: args.depthiness,
-        blend: args.blend.into(),
         only: args.only,
         sbs_pair: args.sbs_pair,
         out_dir: args.out,
@@ -572,13 +598,14 @@ fn sheet(args: SheetArgs) -> Result<()> {
 fn weave(args: WeaveArgs) -> Result<()> {
     output::FileFormat::require(&args.out, &[output::FileFormat::Png])?;
     output::check_output_file(&args.out)?;
-    let board = pipeline::load_board(&args.board, args.calibration.as_deref())?;
+    let mut board = pipeline::load_board(&args.board, args.calibration.as_deref())?;
+    args.filter.apply(&mut board)?;
     reshader::preflight::check_memory(
         format!("weaving for {}", board.name()),
-        &reshader::preflight::weave_estimate(&board, matches!(args.blend, BlendArg::Linear)),
+        &reshader::preflight::weave_estimate(&board),
         "",
     )?;
-    let panel = pipeline::weave_dir(&args.view_dir, &board, args.blend.into())?;
+    let panel = pipeline::weave_dir(&args.view_dir, &board)?;
     let bytes = output::encode_png(&args.out, &panel)?;
     output::write_atomic(&args.out, &bytes)?;
     Ok(())

@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use image::RgbImage;
-use interleave::{make_quilt, side_by_side, Blend, Board, BoardError, WeaveError, Weaver};
+use interleave::{make_quilt, side_by_side, Board, BoardError, WeaveError, Weaver};
 
 use crate::depth::{DepthError, DepthKind, DepthMap, DepthReport};
 use crate::depth_net::{DepthEstimator, DepthNetError, StageReport};
@@ -233,7 +233,6 @@ pub struct RenderOptions {
     pub focus: Option<f64>,
     /// `None`: fit the parallax budget (see [`ViewRig::fitting_depthiness`]).
     pub depthiness: Option<f64>,
-    pub blend: Blend,
     /// Empty means everything.
     pub only: Vec<Product>,
     pub sbs_pair: Option<(usize, usize)>,
@@ -313,7 +312,7 @@ pub fn render(
         views: view_records(&cameras, &fitted.reference),
         reshade: reshader.description(),
         relocate: relocator.description(),
-        blend: Some(format!("{:?}", opts.blend).to_lowercase()),
+        blend: Some(opts.board.filter().blend.name().into()),
         rgbd,
         outputs: Vec::new(),
         timings_ms: t,
@@ -426,7 +425,7 @@ fn write_products(
         stage_png(&board.quilt_file_name(), &quilt, t)?;
     }
     if opts.wants(Product::Panel) {
-        let panel = weave(board, views, opts.blend, t)?;
+        let panel = weave(board, views, t)?;
         stage_png("panel.png", &panel, t)?;
     }
     if opts.wants(Product::Sbs) {
@@ -476,12 +475,7 @@ fn write_rgbd(
     })
 }
 
-fn weave(
-    board: &Board,
-    views: &[RgbImage],
-    blend: Blend,
-    t: &mut Timings,
-) -> Result<RgbImage, PipelineError> {
+fn weave(board: &Board, views: &[RgbImage], t: &mut Timings) -> Result<RgbImage, PipelineError> {
     let (w, h) = views
         .first()
         .map(RgbImage::dimensions)
@@ -489,7 +483,7 @@ fn weave(
             expected: board.views(),
             got: 0,
         })?;
-    let weaver = t.time("weave_table", || Weaver::new(board, w, h, blend));
+    let weaver = t.time("weave_table", || Weaver::new(board, w, h));
     Ok(t.time("weave", || weaver.weave(views))?)
 }
 
@@ -605,10 +599,10 @@ pub fn write_image(path: &Path, image: &SrgbImage) -> Result<(), PipelineError> 
 
 /// Weaves the `view_NN.png` files of `dir` (exactly the board's view count, numbered
 /// from 0 without gaps) into a panel frame.
-pub fn weave_dir(dir: &Path, board: &Board, blend: Blend) -> Result<RgbImage, PipelineError> {
+pub fn weave_dir(dir: &Path, board: &Board) -> Result<RgbImage, PipelineError> {
     let views = read_view_dir(dir, board.views())?;
     let mut t = Timings::default();
-    weave(board, &views, blend, &mut t)
+    weave(board, &views, &mut t)
 }
 
 fn read_view_dir(dir: &Path, expected: usize) -> Result<Vec<RgbImage>, PipelineError> {

@@ -100,7 +100,8 @@ pub mod factors {
     pub const VIEW_SCRATCH: u64 = 120;
     /// The quilt and its PNG encoding, per quilt pixel.
     pub const QUILT: u64 = 6;
-    /// The panel, its lookup table (nearest; linear is 6 more) and PNG, per panel pixel.
+    /// The panel, its lookup table (nearest's; larger tables add their bytes) and PNG, per
+    /// panel pixel.
     pub const PANEL: u64 = 9;
     /// Reshading network activations per working pixel (photo pixels times
     /// --reshade-scale squared): the encoder's features and one decoder run, the latter
@@ -132,8 +133,8 @@ pub struct RenderSize {
     pub quilt_pixels: u64,
     /// Panel pixels; 0 when no panel is written.
     pub panel_pixels: u64,
-    /// Linear blending (a larger weaving table).
-    pub linear: bool,
+    /// Bytes of weaving table per subpixel (1 nearest, 3 linear, 4 Gaussian or dimmed).
+    pub table_bytes: u64,
     /// The reshading network's working scale and views decoded at once; `None`
     /// without a network.
     pub network: Option<(f64, u32)>,
@@ -236,7 +237,7 @@ pub fn estimate(size: &RenderSize) -> MemoryEstimate {
     let quilt = ("quilt", m(size.quilt_pixels, QUILT));
     let panel = (
         "panel",
-        m(size.panel_pixels, PANEL + if size.linear { 6 } else { 0 }),
+        m(size.panel_pixels, PANEL + extra_table(size.table_bytes)),
     );
     let writing = [views, if quilt.1 >= panel.1 { quilt } else { panel }];
     if sum(&relocating) >= sum(&writing) {
@@ -314,7 +315,6 @@ pub fn render_size(
     photo: (u32, u32),
     board: &interleave::Board,
     products: &[crate::pipeline::Product],
-    linear: bool,
     reshade: &crate::reshade_net::cli::ReshadeArgs,
     depth_network: bool,
 ) -> RenderSize {
@@ -340,7 +340,7 @@ pub fn render_size(
         } else {
             0
         },
-        linear,
+        table_bytes: board.filter().table_bytes_per_subpixel(),
         network: reshading_on(reshade.model.as_deref()).then_some((reshade.reshade_scale, at_once)),
         depth_network,
     }
@@ -351,12 +351,12 @@ pub const RENDER_HINT: &str =
     " (or write fewer products with --only, or reshade at a smaller --reshade-scale)";
 
 /// The memory `weave` needs: the board's views read in and the panel.
-pub fn weave_estimate(board: &interleave::Board, linear: bool) -> MemoryEstimate {
+pub fn weave_estimate(board: &interleave::Board) -> MemoryEstimate {
     let (vw, vh) = board.view_size();
     let (pw, ph) = board.panel_size();
     let view = u64::from(vw) * u64::from(vh);
     let panel = u64::from(pw) * u64::from(ph);
-    let per = factors::PANEL + if linear { 6 } else { 0 };
+    let per = factors::PANEL + extra_table(board.filter().table_bytes_per_subpixel());
     MemoryEstimate {
         parts: vec![
             ("process", factors::BASE),
@@ -368,6 +368,11 @@ pub fn weave_estimate(board: &interleave::Board, linear: bool) -> MemoryEstimate
             ("panel", panel.saturating_mul(per)),
         ],
     }
+}
+
+/// Panel bytes a weaving table takes beyond nearest's one byte per subpixel.
+fn extra_table(bytes_per_subpixel: u64) -> u64 {
+    3 * bytes_per_subpixel.saturating_sub(1)
 }
 
 /// The sizes of rendering one view at the photo's own resolution (`view`, `reshade`).
@@ -382,7 +387,7 @@ pub fn single_view_size(
         view: photo,
         quilt_pixels: 0,
         panel_pixels: 0,
-        linear: false,
+        table_bytes: 1,
         network: reshade
             .and_then(|r| reshading_on(r.model.as_deref()).then_some((r.reshade_scale, 1))),
         depth_network,
@@ -401,7 +406,7 @@ pub fn depth_network_estimate(reshading: bool) -> MemoryEstimate {
         view: (0, 0),
         quilt_pixels: 0,
         panel_pixels: 0,
-        linear: false,
+        table_bytes: 1,
         network: reshading.then_some((1.0, 1)),
         depth_network: true,
     })
@@ -421,7 +426,7 @@ mod tests {
             view: (vw, vh),
             quilt_pixels: u64::from(cols * vw) * u64::from(rows * vh),
             panel_pixels: u64::from(pw) * u64::from(ph),
-            linear: true,
+            table_bytes: 3,
             network: networks.then_some((1.0, 1)),
             depth_network: networks,
         }
@@ -461,7 +466,7 @@ mod tests {
             view: (24, 16),
             quilt_pixels: 0,
             panel_pixels: 0,
-            linear: false,
+            table_bytes: 1,
             network: None,
             depth_network: true,
         });

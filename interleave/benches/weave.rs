@@ -1,12 +1,13 @@
 //! Lookup-table build and weave times for a Looking Glass Portrait frame.
 //!
-//! `cargo bench -p interleave` prints one table row per blend mode and thread count: a 1536x2048 panel
-//! woven from 48 views at the Portrait quilt tile size (420x560).
+//! `cargo bench -p interleave` prints one table row per view filter and thread count: a
+//! 1536x2048 panel woven from 48 views at the Portrait quilt tile size (420x560), with
+//! nearest, linear and Gaussian blending, and Gaussian with edge dimming.
 
 use std::time::{Duration, Instant};
 
 use image::{Rgb, RgbImage};
-use interleave::{Blend, Board, Weaver};
+use interleave::{Blend, Board, ViewFilter, Weaver};
 
 const RUNS: usize = 7;
 
@@ -27,19 +28,25 @@ fn main() {
         board.views()
     );
     println!(
-        "{:<8} {:>7} {:>26} {:>26}",
-        "blend", "threads", "LUT build", "weave"
+        "{:<15} {:>7} {:>26} {:>26}",
+        "filter", "threads", "LUT build", "weave"
     );
-    for (blend, threads) in [
-        (Blend::Nearest, 1),
-        (Blend::Nearest, 2),
-        (Blend::Linear, 1),
-        (Blend::Linear, 2),
-    ] {
+    let dimmed = ViewFilter {
+        blend: Blend::Gaussian,
+        dim_edges: 0.1,
+        ..ViewFilter::default()
+    };
+    let filters = [
+        ("nearest", Blend::Nearest.into()),
+        ("linear", Blend::Linear.into()),
+        ("gaussian", Blend::Gaussian.into()),
+        ("gaussian+dim", dimmed),
+    ];
+    for ((name, filter), threads) in filters.iter().flat_map(|f| [(f, 1), (f, 2)]) {
         let mapping = board.mapping();
         let mut weaver = None;
         let build =
-            time_runs(|| weaver = Some(Weaver::from_mapping(&mapping, vw, vh, blend, threads)));
+            time_runs(|| weaver = Some(Weaver::from_mapping(&mapping, vw, vh, *filter, threads)));
         let weaver = weaver.expect("built at least once");
         let mut frame = RgbImage::new(pw, ph);
         let weave = time_runs(|| {
@@ -48,8 +55,8 @@ fn main() {
                 .expect("views match the weaver")
         });
         println!(
-            "{:<8} {:>7} {:>26} {:>26}",
-            format!("{blend:?}").to_lowercase(),
+            "{:<15} {:>7} {:>26} {:>26}",
+            name,
             threads,
             summary(&build),
             summary(&weave)

@@ -12,6 +12,7 @@ use std::path::{Path, PathBuf};
 use serde::Deserialize;
 
 use crate::cells::{CellPattern, SubpixelCell, MAX_CELLS, MAX_CELL_OFFSET};
+use crate::filter::{ViewFilter, MAX_DIM_EDGES, SIGMA_RANGE};
 use crate::mapping::{LensPhase, Mapping};
 
 /// Largest view count a board may declare; the weaving tables store view indices as bytes.
@@ -252,6 +253,8 @@ struct BoardFile {
     looking_glass: Option<LookingGlass>,
     van_berkel: Option<VanBerkel>,
     side_by_side: Option<SideBySide>,
+    #[serde(default)]
+    filter: ViewFilter,
 }
 
 /// A validated panel description.
@@ -269,6 +272,7 @@ pub struct Board {
     view_cone_deg: f64,
     subpixels: SubpixelLayout,
     lens: Lens,
+    filter: ViewFilter,
 }
 
 impl Board {
@@ -353,6 +357,7 @@ impl Board {
         )?;
         let view_size = v.view_size(&f)?;
         let lens = v.lens(&f)?;
+        v.filter(&f.filter)?;
         Ok(Board {
             name: f.name,
             description: f.description,
@@ -366,6 +371,7 @@ impl Board {
             view_cone_deg: f.view_cone_deg,
             subpixels: f.subpixels,
             lens,
+            filter: f.filter,
         })
     }
 
@@ -480,6 +486,21 @@ impl Board {
 
     pub fn lens(&self) -> &Lens {
         &self.lens
+    }
+
+    /// How views are blended and dimmed when weaving (the board file's `[filter]`).
+    pub fn filter(&self) -> ViewFilter {
+        self.filter
+    }
+
+    /// Replaces the view filter (a command-line override), checked as a board file's.
+    pub fn set_filter(&mut self, filter: ViewFilter) -> Result<(), BoardError> {
+        Validator {
+            origin: "the view filter",
+        }
+        .filter(&filter)?;
+        self.filter = filter;
+        Ok(())
     }
 
     /// The subpixel → view mapping all lens descriptions reduce to.
@@ -702,6 +723,11 @@ impl Validator<'_> {
         self.positive("looking_glass.dpi", lg.dpi)?;
         self.within("looking_glass.dpi", lg.dpi, DPI_RANGE)?;
         self.cells("looking_glass.subpixel_cells", &lg.subpixel_cells)
+    }
+
+    fn filter(&self, f: &ViewFilter) -> Result<(), BoardError> {
+        self.within("filter.sigma", f.sigma, SIGMA_RANGE)?;
+        self.within("filter.dim_edges", f.dim_edges, (0.0, MAX_DIM_EDGES))
     }
 
     fn cells(&self, field: &str, cells: &[SubpixelCell]) -> Result<(), BoardError> {

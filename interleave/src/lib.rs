@@ -12,12 +12,14 @@
 
 pub mod board;
 pub mod cells;
+pub mod filter;
 pub mod mapping;
 pub mod quilt;
 pub mod weave;
 
 pub use board::{Board, BoardError, Calibration, Lens, LookingGlass, SubpixelLayout, VanBerkel};
 pub use cells::{CellPattern, SubpixelCell};
+pub use filter::{Blend, UnknownBlend, ViewFilter};
 pub use mapping::{LensPhase, Mapping};
 pub use quilt::{make_quilt, quilt_file_name, side_by_side, split_quilt};
-pub use weave::{Blend, WeaveError, Weaver};
+pub use weave::{WeaveError, Weaver};

@@ -1,10 +1,9 @@
 //! Weaving N view images into one panel frame through a precomputed lookup table.
 
-use std::str::FromStr;
-
 use image::RgbImage;
 
 use crate::board::Board;
+use crate::filter::{Blend, Taps, ViewFilter};
 use crate::mapping::{blend_views, nearest_view, Mapping};
 
 /// Threads used by [`Weaver::new`]: the machine's cores, at most 8 (the gather is
@@ -13,19 +12,23 @@ fn default_threads() -> usize {
     std::thread::available_parallelism().map_or(1, |n| n.get().min(8))
 }
 
-fn build_table(mapping: &Mapping, blend: Blend, threads: usize) -> Table {
+fn build_table(mapping: &Mapping, filter: ViewFilter, threads: usize) -> Table {
     let (w, h) = mapping.panel_size();
     let row_len = w as usize * 3;
     let len = row_len * h as usize;
     let views = mapping.views();
-    match blend {
-        Blend::Nearest => {
-            let mut table = vec![0u8; len];
-            for_row_chunks(&mut table, row_len, threads, |first, chunk| {
-                fill_rows(mapping, first, chunk, |t| nearest_view(t, views) as u8)
-            });
-            Table::Nearest(table)
-        }
+    if filter.weighted() {
+        let mut table = vec![[0u8; 4]; len];
+        for_row_chunks(&mut table, row_len, threads, |first, chunk| {
+            let taps = filter.tapper(views);
+            fill_rows(mapping, first, chunk, |t| weighted_entry(taps(t), views))
+        });
+        return Table::Weighted {
+            taps: views.min(3),
+            entries: table,
+        };
+    }
+    match filter.blend {
         Blend::Linear => {
             let mut table = vec![[0u8; 3]; len];
             for_row_chunks(&mut table, row_len, threads, |first, chunk| {
@@ -38,7 +41,33 @@ fn build_table(mapping: &Mapping, blend: Blend, threads: usize) -> Table {
             });
             Table::Linear(table)
         }
+        _ => {
+            let mut table = vec![0u8; len];
+            for_row_chunks(&mut table, row_len, threads, |first, chunk| {
+                fill_rows(mapping, first, chunk, |t| nearest_view(t, views) as u8)
+            });
+            Table::Nearest(table)
+        }
     }
+}
+
+/// `[first view, weight 0, weight 1, weight 2]`, weights in 1/255ths. The weights are
+/// rounded so that they add up to the rounded total, and the first view is moved down
+/// where needed so that all three taps are views (a weight past the last view is 0).
+fn weighted_entry(taps: Taps, views: usize) -> [u8; 4] {
+    let first = taps.first.min(views.saturating_sub(3));
+    let shift = taps.first - first;
+    let mut w = [0u8; 3];
+    for (j, &weight) in taps.weights.iter().enumerate() {
+        if let Some(slot) = w.get_mut(j + shift) {
+            *slot = (weight * 255.0 + 0.5) as u8;
+        }
+    }
+    let total = (taps.weights.iter().sum::<f64>() * 255.0 + 0.5) as i32;
+    let heaviest = (0..3).max_by_key(|&j| w[j]).unwrap_or(0);
+    let rest: i32 = w.iter().map(|&x| i32::from(x)).sum::<i32>() - i32::from(w[heaviest]);
+    w[heaviest] = (total - rest).clamp(0, 255) as u8;
+    [first as u8, w[0], w[1], w[2]]
 }
 
 /// Fills table rows `first_row..` with `entry(cone position)` for each subpixel.
@@ -134,30 +163,6 @@ pub enum WeaveError {
         cols: u32,
         rows: u32,
     },
-    #[error("unknown blend mode `{0}`; use `nearest` or `linear`")]
-    UnknownBlend(String),
-}
-
-/// How a subpixel between two view centres is coloured.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
-pub enum Blend {
-    /// The one view whose slice of the cone the subpixel falls in.
-    #[default]
-    Nearest,
-    /// A linear mix of the two views whose centres bracket the subpixel's cone position.
-    Linear,
-}
-
-impl FromStr for Blend {
-    type Err = WeaveError;
-
-    fn from_str(s: &str) -> Result<Blend, WeaveError> {
-        match s {
-            "nearest" => Ok(Blend::Nearest),
-            "linear" | "blend" => Ok(Blend::Linear),
-            other => Err(WeaveError::UnknownBlend(other.to_string())),
-        }
-    }
 }
 
 /// Per-subpixel lookup table, row-major, 3 entries per panel pixel.
@@ -168,6 +173,9 @@ enum Table {
     /// Two views and the weight of the second, in 1/255ths. Where no blending happens
     /// both views are the same, so the gather needs no branch.
     Linear(Vec<[u8; 3]>),
+    /// Gaussian blending or edge dimming: `taps` consecutive views from the first, with
+    /// their weights (see [`weighted_entry`]).
+    Weighted { taps: usize, entries: Vec<[u8; 4]> },
 }
 
 /// A board's mapping baked into tables for one view resolution; weaving is then a gather.
@@ -179,6 +187,7 @@ pub struct Weaver {
     view_h: u32,
     views: usize,
     threads: usize,
+    filter: ViewFilter,
     table: Table,
     /// Byte offset inside a view row of the pixel each panel column samples.
     col_offset: Vec<usize>,
@@ -193,31 +202,40 @@ impl std::fmt::Debug for Weaver {
             .field("panel", &(self.panel_w, self.panel_h))
             .field("view", &(self.view_w, self.view_h))
             .field("views", &self.views)
-            .field("blend", &self.blend())
+            .field("filter", &self.filter)
             .field("threads", &self.threads)
             .finish_non_exhaustive()
     }
 }
 
 impl Weaver {
-    /// Precomputes the lookup tables for weaving `view_w`x`view_h` views onto `board`.
+    /// Precomputes the lookup tables for weaving `view_w`x`view_h` views onto `board`,
+    /// with the board's view filter.
     ///
     /// Building and weaving use all available cores; see [`Weaver::with_threads`].
-    pub fn new(board: &Board, view_w: u32, view_h: u32, blend: Blend) -> Weaver {
-        Weaver::from_mapping(&board.mapping(), view_w, view_h, blend, default_threads())
+    pub fn new(board: &Board, view_w: u32, view_h: u32) -> Weaver {
+        Weaver::from_mapping(
+            &board.mapping(),
+            view_w,
+            view_h,
+            board.filter(),
+            default_threads(),
+        )
     }
 
-    /// As [`Weaver::new`], from a mapping directly and with an explicit thread count.
+    /// As [`Weaver::new`], from a mapping and a filter directly, with an explicit thread
+    /// count.
     pub fn from_mapping(
         mapping: &Mapping,
         view_w: u32,
         view_h: u32,
-        blend: Blend,
+        filter: impl Into<ViewFilter>,
         threads: usize,
     ) -> Weaver {
+        let filter = filter.into();
         let (panel_w, panel_h) = mapping.panel_size();
         let threads = threads.max(1);
-        let table = build_table(mapping, blend, threads);
+        let table = build_table(mapping, filter, threads);
         let (col_offset, row_offset) = if view_w == 0 || view_h == 0 {
             (Vec::new(), Vec::new())
         } else {
@@ -236,6 +254,7 @@ impl Weaver {
             view_h,
             views: mapping.views(),
             threads,
+            filter,
             table,
             col_offset,
             row_offset,
@@ -260,19 +279,22 @@ impl Weaver {
         self.views
     }
 
-    pub fn blend(&self) -> Blend {
-        match self.table {
-            Table::Nearest(_) => Blend::Nearest,
-            Table::Linear(_) => Blend::Linear,
-        }
+    pub fn filter(&self) -> ViewFilter {
+        self.filter
     }
 
-    /// The (first) view feeding channel `c` of panel pixel (x, y), as baked in the table.
+    /// The view feeding channel `c` of panel pixel (x, y), as baked in the table: the
+    /// first of linear's two, the heaviest of a weighted entry's.
     pub fn view_at(&self, x: u32, y: u32, c: usize) -> usize {
         let i = (y as usize * self.panel_w as usize + x as usize) * 3 + c;
         match &self.table {
             Table::Nearest(t) => t[i] as usize,
             Table::Linear(t) => t[i][0] as usize,
+            Table::Weighted { entries, .. } => {
+                let [first, w @ ..] = entries[i];
+                let heaviest = (0..3).rev().max_by_key(|&j| w[j]).unwrap_or(0);
+                first as usize + heaviest
+            }
         }
     }
 
@@ -300,6 +322,9 @@ impl Weaver {
                 match &self.table {
                     Table::Nearest(t) => self.gather_row(&sources, base, &t[span], out_row),
                     Table::Linear(t) => self.blend_row(&sources, base, &t[span], out_row),
+                    Table::Weighted { taps, entries } => {
+                        self.weighted_row(&sources, base, *taps, &entries[span], out_row)
+                    }
                 }
             }
         });
@@ -326,6 +351,30 @@ impl Weaver {
                 let b = u32::from(sources[v1 as usize][at + c]);
                 let w = u32::from(w);
                 px[c] = ((a * (255 - w) + b * w + 127) / 255) as u8;
+            }
+        }
+    }
+
+    fn weighted_row(
+        &self,
+        sources: &[&[u8]],
+        base: usize,
+        taps: usize,
+        table: &[[u8; 4]],
+        out: &mut [u8],
+    ) {
+        let pixels = out.chunks_exact_mut(3).zip(table.chunks_exact(3));
+        for ((px, entries), &col) in pixels.zip(&self.col_offset) {
+            let at = base + col;
+            for c in 0..3 {
+                let [first, w @ ..] = entries[c];
+                let views = &sources[first as usize..first as usize + taps];
+                let sum: u32 = views
+                    .iter()
+                    .zip(w)
+                    .map(|(v, w)| u32::from(v[at + c]) * u32::from(w))
+                    .sum();
+                px[c] = ((sum + 127) / 255) as u8;
             }
         }
     }

@@ -114,6 +114,46 @@ fn looking_glass_boards_carry_the_issue_values() {
 }
 
 #[test]
+fn a_board_chooses_its_view_filter() {
+    use interleave::{Blend, ViewFilter};
+    assert_eq!(
+        Board::from_toml_str(GOOD, "x.toml").unwrap().filter(),
+        ViewFilter::default()
+    );
+    let text = format!("{GOOD}\n[filter]\nblend = \"gaussian\"\nsigma = 0.7\ndim_edges = 0.1\n");
+    let filter = Board::from_toml_str(&text, "x.toml").unwrap().filter();
+    assert_eq!(
+        filter,
+        ViewFilter {
+            blend: Blend::Gaussian,
+            sigma: 0.7,
+            dim_edges: 0.1
+        }
+    );
+    let err = error_for(&format!("{GOOD}\n[filter]\nblend = \"gausian\"\n"));
+    assert!(err.contains("unknown variant `gausian`"), "{err}");
+    let err = error_for(&format!("{GOOD}\n[filter]\nsigma = 5.0\n"));
+    assert!(
+        err.contains("field `filter.sigma`: must be between 0.1 and 2"),
+        "{err}"
+    );
+    let err = error_for(&format!("{GOOD}\n[filter]\ndim_edges = 0.7\n"));
+    assert!(err.contains("field `filter.dim_edges`"), "{err}");
+    let err = error_for(&format!("{GOOD}\n[filter]\ndim_edge = 0.1\n"));
+    assert!(err.contains("unknown field `dim_edge`"), "{err}");
+    // A command-line override is checked the same way.
+    let mut board = Board::from_toml_str(GOOD, "x.toml").unwrap();
+    let err = board
+        .set_filter(ViewFilter {
+            dim_edges: -1.0,
+            ..ViewFilter::default()
+        })
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("filter.dim_edges"), "{err}");
+}
+
+#[test]
 fn resolve_takes_names_and_paths_and_lists_known_names() {
     assert_eq!(Board::resolve("sbs-2view").unwrap().views(), 2);
     let dir = tempfile::tempdir().unwrap();

@@ -1,7 +1,7 @@
 //! Panels whose subpixels are placed by cells (Looking Glass's Spatial Displays):
 //! hand-computed subpixels, the identity with the plain stripe, calibration files.
 
-use interleave::{Blend, Board, Calibration, CellPattern, Lens, Weaver};
+use interleave::{Board, Calibration, CellPattern, Lens, Weaver};
 
 /// A 10x10 panel, 1 inch wide (DPI 10), slope 4/3 so that cos(atan(3/4)) = 4/5:
 /// pitch' = 5 · (10/10) · 0.8 = 4 lenses across the panel, tilt = 10 / (10 · 4/3) = 0.75.
@@ -120,7 +120,7 @@ dpi = 324.0
 fn weaving_table_matches_the_mapping_on_every_subpixel() {
     let board = Board::from_toml_str(SMALL, "small.toml").unwrap();
     let m = board.mapping();
-    let weaver = Weaver::new(&board, 5, 5, Blend::Nearest);
+    let weaver = Weaver::new(&board, 5, 5);
     for y in 0..10 {
         for x in 0..10 {
             for c in 0..3 {

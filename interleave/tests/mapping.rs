@@ -383,7 +383,7 @@ proptest! {
     #[test]
     fn every_view_index_is_in_range(lg in lg_strategy()) {
         let board = lg.board("");
-        let weaver = interleave::Weaver::new(&board, 3, 2, interleave::Blend::Linear);
+        let weaver = interleave::Weaver::from_mapping(&board.mapping(), 3, 2, interleave::Blend::Linear, 2);
         let m = board.mapping();
         for y in 0..lg.h {
             for x in 0..lg.w {

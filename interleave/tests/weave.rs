@@ -1,7 +1,9 @@
 //! Weaving through the lookup table, quilts and side-by-side output.
 
 use image::{Rgb, RgbImage};
-use interleave::{make_quilt, side_by_side, split_quilt, Blend, Board, WeaveError, Weaver};
+use interleave::{
+    make_quilt, side_by_side, split_quilt, Blend, Board, ViewFilter, WeaveError, Weaver,
+};
 use proptest::prelude::*;
 
 /// View `i` is flat grey level `20·i + 5` in every channel.
@@ -46,9 +48,7 @@ fn nearest_weave_picks_each_subpixel_from_its_view() {
     let board = small_lg_board();
     let m = board.mapping();
     let views = flat_views(12, 60, 40);
-    let panel = Weaver::new(&board, 60, 40, Blend::Nearest)
-        .weave(&views)
-        .unwrap();
+    let panel = Weaver::new(&board, 60, 40).weave(&views).unwrap();
     assert_eq!(panel.dimensions(), (60, 40));
     let mut seen = [false; 12];
     for (x, y, px) in panel.enumerate_pixels() {
@@ -68,7 +68,7 @@ fn nearest_weave_picks_each_subpixel_from_its_view() {
 fn small_views_are_sampled_at_the_normalised_position() {
     let board = Board::builtin("generic-8view").unwrap();
     let views = coordinate_views(8, 96, 54);
-    let weaver = Weaver::new(&board, 96, 54, Blend::Nearest);
+    let weaver = Weaver::new(&board, 96, 54);
     let panel = weaver.weave(&views).unwrap();
     // Panel pixel (1000, 500) sits at (1000.5/1920, 500.5/1080) = (0.5211, 0.4634) of the
     // view: column floor(0.5211·96) = 50, row floor(0.4634·54) = 25.
@@ -92,9 +92,7 @@ fn flip_image_flags_mirror_the_sampled_views() {
     );
     let board = Board::from_toml_str(&text, "flipped.toml").unwrap();
     let views = coordinate_views(12, 60, 40);
-    let panel = Weaver::new(&board, 60, 40, Blend::Nearest)
-        .weave(&views)
-        .unwrap();
+    let panel = Weaver::new(&board, 60, 40).weave(&views).unwrap();
     for (x, y, px) in panel.enumerate_pixels() {
         // R carries the sampled view column, G the sampled view row.
         assert_eq!(
@@ -113,7 +111,9 @@ fn side_by_side_board_weaves_as_a_stereo_pair() {
         .map(|i| RgbImage::from_fn(vw, vh, |x, y| Rgb([(x % 251) as u8, (y % 241) as u8, i])))
         .collect();
     for blend in [Blend::Nearest, Blend::Linear] {
-        let panel = Weaver::new(&board, vw, vh, blend).weave(&views).unwrap();
+        let panel = Weaver::from_mapping(&board.mapping(), vw, vh, blend, 2)
+            .weave(&views)
+            .unwrap();
         assert_eq!(panel, side_by_side(&views[0], &views[1]), "{blend:?}");
     }
 }
@@ -123,7 +123,7 @@ fn linear_blend_mixes_the_two_neighbouring_views() {
     let board = small_lg_board();
     let m = board.mapping();
     let views = flat_views(12, 30, 20);
-    let panel = Weaver::new(&board, 30, 20, Blend::Linear)
+    let panel = Weaver::from_mapping(&board.mapping(), 30, 20, Blend::Linear, 2)
         .weave(&views)
         .unwrap();
     let mut mixed = 0;
@@ -152,7 +152,7 @@ fn linear_blend_mixes_the_two_neighbouring_views() {
 #[test]
 fn weave_rejects_wrong_views() {
     let board = small_lg_board();
-    let weaver = Weaver::new(&board, 30, 20, Blend::Nearest);
+    let weaver = Weaver::new(&board, 30, 20);
     assert_eq!(
         weaver.weave(&flat_views(11, 30, 20)),
         Err(WeaveError::ViewCount {
@@ -164,7 +164,7 @@ fn weave_rejects_wrong_views() {
     views[7] = RgbImage::new(30, 21);
     let err = weaver.weave(&views).unwrap_err();
     assert_eq!(err.to_string(), "view 7 is 30x21, expected 30x20");
-    let empty = Weaver::new(&board, 0, 20, Blend::Nearest);
+    let empty = Weaver::new(&board, 0, 20);
     assert!(matches!(
         empty.weave(&flat_views(12, 0, 20)),
         Err(WeaveError::EmptyView { .. })
@@ -175,7 +175,17 @@ fn weave_rejects_wrong_views() {
 fn threads_split_rows_without_changing_the_frame() {
     let board = small_lg_board();
     let views = coordinate_views(12, 30, 20);
-    for blend in [Blend::Nearest, Blend::Linear] {
+    let dimmed = ViewFilter {
+        blend: Blend::Gaussian,
+        sigma: 0.7,
+        dim_edges: 0.2,
+    };
+    for blend in [
+        Blend::Nearest.into(),
+        Blend::Linear.into(),
+        Blend::Gaussian.into(),
+        dimmed,
+    ] {
         let one = Weaver::from_mapping(&board.mapping(), 30, 20, blend, 1);
         let frame = one.weave(&views).unwrap();
         for threads in [2, 3, 7, 64] {
@@ -190,17 +200,73 @@ fn threads_split_rows_without_changing_the_frame() {
 #[test]
 fn weave_into_reuses_the_frame() {
     let board = small_lg_board();
-    let weaver = Weaver::new(&board, 30, 20, Blend::Nearest);
+    let weaver = Weaver::new(&board, 30, 20);
     let views = coordinate_views(12, 30, 20);
     let mut frame = RgbImage::new(60, 40);
     weaver.weave_into(&views, &mut frame).unwrap();
     assert_eq!(frame, weaver.weave(&views).unwrap());
 }
 
+/// generic-8view: `t = frac((3x + c + 0.5 − y)/8)`, so every subpixel sits exactly at
+/// the centre of its view `(3x + c − y) mod 8`. Views are flat grey `10·i`.
+fn eight_view_pixel(filter: ViewFilter, value: impl Fn(usize) -> u8) -> [u8; 3] {
+    let mut board = Board::builtin("generic-8view").unwrap();
+    board.set_filter(filter).unwrap();
+    let views: Vec<RgbImage> = (0..8)
+        .map(|i| RgbImage::from_pixel(4, 4, Rgb([value(i); 3])))
+        .collect();
+    Weaver::new(&board, 4, 4)
+        .weave(&views)
+        .unwrap()
+        .get_pixel(0, 0)
+        .0
+}
+
+#[test]
+fn gaussian_weave_by_hand() {
+    let gaussian = ViewFilter::from(Blend::Gaussian);
+    // Pixel (0, 0): R shows view 0, G view 1, B view 2, each at its view's centre.
+    // G, σ = 0.5: views 0, 1, 2 at distances 1, 0, 1 weigh e^−2 : 1 : e^−2, i.e.
+    // 0.106507, 0.786986, 0.106507 → 27, 201, 27 (/255):
+    //   (27·0 + 201·10 + 27·20 + 127) / 255 = 2677 / 255 → 10 (symmetric: the centre's).
+    // R: view 0 is the outermost, so its taps are views 0, 1, 2 at distances 0, 1, 2:
+    //   1 : e^−2 : e^−8 = 0.880537, 0.119168, 0.000295 → 225, 30, 0:
+    //   (225·0 + 30·10 + 0·20 + 127) / 255 = 427 / 255 → 1.
+    assert_eq!(eight_view_pixel(gaussian, |i| 10 * i as u8), [1, 10, 20]);
+    // Linear and nearest show the centre views unmixed.
+    for blend in [Blend::Nearest, Blend::Linear] {
+        assert_eq!(
+            eight_view_pixel(blend.into(), |i| 10 * i as u8),
+            [0, 10, 20]
+        );
+    }
+    // Weights add up to 255: equal views come through unchanged, everywhere.
+    let board = small_lg_board();
+    let views = vec![flat_views(1, 30, 20).remove(0); 12];
+    let panel = Weaver::from_mapping(&board.mapping(), 30, 20, gaussian, 2)
+        .weave(&views)
+        .unwrap();
+    assert!(panel.pixels().all(|p| p.0 == [5; 3]));
+}
+
+#[test]
+fn edge_dimming_by_hand() {
+    let dimmed = ViewFilter {
+        dim_edges: 0.25,
+        ..ViewFilter::default()
+    };
+    // Pixel (0, 0) at cone positions t = 0.5/8, 1.5/8, 2.5/8 = 0.0625, 0.1875, 0.3125;
+    // brightness smoothstep(t / 0.25): x = 0.25 → 0.25²·(3 − 0.5) = 0.15625 → 40/255;
+    // x = 0.75 → 0.75²·(3 − 1.5) = 0.84375 → 215/255; x ≥ 1 → 1.
+    // All views grey 200: (200·40 + 127)/255 → 31, (200·215 + 127)/255 → 169, 200.
+    assert_eq!(eight_view_pixel(dimmed, |_| 200), [31, 169, 200]);
+}
+
 #[test]
 fn blend_parses_from_cli_words() {
     assert_eq!("nearest".parse::<Blend>(), Ok(Blend::Nearest));
     assert_eq!("linear".parse::<Blend>(), Ok(Blend::Linear));
+    assert_eq!("gaussian".parse::<Blend>(), Ok(Blend::Gaussian));
     assert!("cubic"
         .parse::<Blend>()
         .unwrap_err()
@@ -282,7 +348,7 @@ proptest! {
         vw in 1u32..24, vh in 1u32..24,
         lens in 0u8..3,
         a_exp in -310.0f64..310.0, b_exp in -310.0f64..310.0, c_exp in -310.0f64..310.0,
-        signs in 0u8..8, linear in any::<bool>(),
+        signs in 0u8..8, filter in 0u8..4,
     ) {
         let sign = |bit: u8| if signs & bit != 0 { -1.0 } else { 1.0 };
         let (a, b, c) = (
@@ -297,8 +363,13 @@ proptest! {
         };
         let n = board.views();
         let images = coordinate_views(n, vw, vh);
-        let blend = if linear { Blend::Linear } else { Blend::Nearest };
-        let panel = Weaver::new(&board, vw, vh, blend).weave(&images).unwrap();
+        let blend = [
+            Blend::Nearest.into(),
+            Blend::Linear.into(),
+            Blend::Gaussian.into(),
+            ViewFilter { blend: Blend::Linear, sigma: 0.5, dim_edges: 0.3 },
+        ][usize::from(filter)];
+        let panel = Weaver::from_mapping(&board.mapping(), vw, vh, blend, 2).weave(&images).unwrap();
         prop_assert_eq!(panel.dimensions(), (w, h));
         for px in panel.pixels() {
             prop_assert!((px[2] as usize) < n.max(1));

@@ -5,7 +5,7 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use image::RgbImage;
-use interleave::{Blend, Board, Weaver};
+use interleave::{Board, Weaver};
 
 use crate::depth_net::{network_depth, StageOptions};
 use crate::photo::{Photo, SrgbImage};
@@ -132,7 +132,7 @@ fn run_once(ctx: &Context, photo: &Path, board: &Board) -> Result<Run, BenchErro
         .map(|net| time_reshading(net, &prepared))
         .transpose()?;
     let weaver = timed(&mut t, "weave table", || {
-        Weaver::new(board, vw, vh, Blend::Nearest).with_threads(ctx.threads)
+        Weaver::new(board, vw, vh).with_threads(ctx.threads)
     });
     let panel = timed(&mut t, "weave", || {
         let rgb8: Vec<RgbImage> = views.iter().map(SrgbImage::to_rgb8).collect();

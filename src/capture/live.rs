@@ -17,7 +17,7 @@ use std::time::{Duration, Instant};
 
 use image::imageops::{self, FilterType};
 use image::RgbImage;
-use interleave::{Blend, Board, Weaver};
+use interleave::{Board, Weaver};
 
 use super::{CameraRequest, CaptureError, Frame, FrameSource, PixelFormat};
 use crate::depth::DepthMap;
@@ -364,7 +364,7 @@ pub fn run_pipeline(
         board.width(),
         board.height()
     );
-    let weaver = Weaver::new(board, work_size.0, work_size.1, Blend::Nearest);
+    let weaver = Weaver::new(board, work_size.0, work_size.1);
     let mailbox = Arc::new(Mailbox::default());
     let capture = spawn_capture(source, Arc::clone(&mailbox), Arc::clone(stop));
     let mut run = Run::new(work_size, weaver.panel_size());

@@ -8,7 +8,7 @@ use std::sync::atomic::AtomicBool;
 use std::sync::Arc;
 use std::time::Duration;
 
-use interleave::{Blend, Board};
+use interleave::Board;
 
 use super::watch::{watch, WatchOptions};
 use super::{convert_batch, ConvertReport, Converter, FnConverter, OutLayout, PhotoReport};
@@ -372,7 +372,6 @@ pub fn pipeline_converter(args: &GalleryArgs) -> Result<impl Converter, GalleryE
                     size,
                     &board,
                     &only,
-                    false,
                     &reshade_args,
                     sidecar.is_none(),
                 );
@@ -401,7 +400,6 @@ pub fn pipeline_converter(args: &GalleryArgs) -> Result<impl Converter, GalleryE
                 calibration: calibration.clone(),
                 focus: None,
                 depthiness,
-                blend: Blend::Nearest,
                 only: only.clone(),
                 sbs_pair: None,
                 out_dir: out_dir.into(),

@@ -12,10 +12,12 @@ use std::path::{Path, PathBuf};
 
 use image::{DynamicImage, ImageBuffer, ImageDecoder, ImageFormat, Luma};
 
+use crate::depth_holes::{self, HolePolicy, Holes};
 use crate::limits::{self, ReadError, TooLarge};
 use crate::npy::{self, NpyError};
 use crate::output::{FileFormat, OutputError};
 use crate::pfm::{self, PfmError};
+use crate::photo::SrgbImage;
 
 /// Depth given to the 98th disparity percentile of a relative-disparity map.
 pub const NEAR: f32 = 1.0;
@@ -69,13 +71,22 @@ pub enum DepthError {
     },
     #[error("depth map {path}: {source}")]
     TooLarge { path: PathBuf, source: TooLarge },
-    #[error("depth map {path} has {count} NaN or infinite values (first at x={x}, y={y})")]
-    NotFinite {
+    #[error(
+        "depth map {path} has {count} pixels without depth ({what}; first at x={x}, y={y}), \
+         {percent:.2}% of the map; pass --depth-holes fill to fill them from their \
+         neighbours and the photo, or --depth-holes far to put them at the farthest depth \
+         (a sky)"
+    )]
+    Holes {
         path: PathBuf,
         count: usize,
+        what: String,
+        percent: f64,
         x: usize,
         y: usize,
     },
+    #[error("depth map {path} has no depth at all: every value is a hole ({what})")]
+    NoDepth { path: PathBuf, what: String },
     #[error("depth map {path} has all values equal ({value}); it carries no depth")]
     Constant { path: PathBuf, value: f32 },
     #[error(
@@ -150,6 +161,9 @@ pub struct DepthReport {
     /// Disparity percentiles (2nd, 98th) mapped to FAR and NEAR, for relative disparity.
     pub disparity_percentiles: Option<[f32; 2]>,
     pub depth_range: [f32; 2],
+    /// `--depth-holes`, and the share of the file's pixels that were holes (0 to 1).
+    pub hole_policy: HolePolicy,
+    pub hole_fraction: f64,
 }
 
 impl DepthMap {
@@ -182,18 +196,19 @@ impl DepthMap {
         self.data[y * self.width + x]
     }
 
-    /// Reads, validates and interprets a depth file and fits it to a photo of
-    /// `photo_w`×`photo_h` pixels.
+    /// Reads, validates and interprets a depth file, treats its holes as `holes` says
+    /// (filling follows `photo`'s colours) and fits it to `photo`'s size.
     pub fn load(
         path: &Path,
         kind: DepthKind,
-        photo_w: u32,
-        photo_h: u32,
+        holes: HolePolicy,
+        photo: &SrgbImage,
     ) -> Result<(Self, DepthReport), DepthError> {
-        let raw = read_raw(path)?;
-        check_finite(path, &raw)?;
-        check_not_constant(path, &raw)?;
+        let (photo_w, photo_h) = (photo.width(), photo.height());
+        let mut raw = read_raw(path)?;
         check_aspect(path, &raw, photo_w, photo_h)?;
+        let hole_fraction = treat_holes(path, &mut raw, kind, holes, photo)?;
+        check_not_constant(path, &raw)?;
         let (map, percentiles) = match kind {
             DepthKind::Depth => (Self::from_depth(path, raw.clone())?, None),
             DepthKind::Disparity => {
@@ -220,6 +235,8 @@ impl DepthMap {
             resized_to,
             disparity_percentiles: percentiles,
             depth_range: map.range(),
+            hole_policy: holes,
+            hole_fraction,
         };
         Ok((map, report))
     }
@@ -550,21 +567,58 @@ fn encode_exr(path: &Path, map: &DepthMap) -> Result<Vec<u8>, DepthError> {
     Ok(buf.into_inner())
 }
 
-fn check_finite(path: &Path, raw: &RawMap) -> Result<(), DepthError> {
-    let mut bad = raw
-        .values
-        .iter()
-        .enumerate()
-        .filter(|(_, v)| !v.is_finite());
-    if let Some((first, _)) = bad.next() {
-        return Err(DepthError::NotFinite {
+/// Refuses or fills the holes of `raw` as `policy` says; returns the share of pixels
+/// that were holes.
+fn treat_holes(
+    path: &Path,
+    raw: &mut RawMap,
+    kind: DepthKind,
+    policy: HolePolicy,
+    photo: &SrgbImage,
+) -> Result<f64, DepthError> {
+    let holes = Holes::find(&raw.values, kind);
+    let Some(first) = holes.first else {
+        return Ok(0.0);
+    };
+    if holes.count() == raw.values.len() {
+        return Err(DepthError::NoDepth {
             path: path.into(),
-            count: 1 + bad.count(),
-            x: first % raw.width,
-            y: first / raw.width,
+            what: holes.describe(),
         });
     }
-    Ok(())
+    match policy {
+        HolePolicy::Refuse => {
+            return Err(DepthError::Holes {
+                path: path.into(),
+                count: holes.count(),
+                what: holes.describe(),
+                percent: holes.fraction() * 100.0,
+                x: first % raw.width,
+                y: first / raw.width,
+            })
+        }
+        HolePolicy::Far => depth_holes::fill_far(&mut raw.values, &holes.mask, kind),
+        HolePolicy::Fill => {
+            let guide = photo.resized(raw.width as u32, raw.height as u32);
+            depth_holes::fill_guided(
+                &mut raw.values,
+                &holes.mask,
+                raw.width,
+                raw.height,
+                kind,
+                &guide,
+            );
+        }
+    }
+    log::info!(
+        "depth map {}: {} holes ({}, {:.2}% of the map), --depth-holes {}",
+        path.display(),
+        holes.count(),
+        holes.describe(),
+        holes.fraction() * 100.0,
+        policy.name()
+    );
+    Ok(holes.fraction())
 }
 
 fn check_not_constant(path: &Path, raw: &RawMap) -> Result<(), DepthError> {
@@ -610,6 +664,16 @@ mod tests {
         path
     }
 
+    /// [`DepthMap::load`] for a grey photo of `w`×`h`, refusing holes.
+    fn load(
+        path: &Path,
+        kind: DepthKind,
+        w: u32,
+        h: u32,
+    ) -> Result<(DepthMap, DepthReport), DepthError> {
+        DepthMap::load(path, kind, HolePolicy::Refuse, &SrgbImage::new(w, h))
+    }
+
     fn ramp(w: usize, h: usize) -> DepthMap {
         DepthMap::new(w, h, (0..w * h).map(|i| 1.0 + i as f32 * 0.25).collect())
     }
@@ -621,7 +685,7 @@ mod tests {
         for ext in ["npy", "pfm", "exr", "png"] {
             let path = dir.path().join(format!("d.{ext}"));
             std::fs::write(&path, map.encode(&path).unwrap()).unwrap();
-            let (back, report) = DepthMap::load(&path, DepthKind::Depth, 4, 3).unwrap();
+            let (back, report) = load(&path, DepthKind::Depth, 4, 3).unwrap();
             assert_eq!(report.resized_to, None);
             for (a, b) in back.data().iter().zip(map.data()) {
                 assert!((a - b).abs() < 1e-3, "{ext}: {a} vs {b}");
@@ -668,11 +732,11 @@ mod tests {
             "nan.npy",
             &npy::encode_f32(&[2, 2], &[1.0, f32::NAN, 2.0, f32::INFINITY]),
         );
-        let err = DepthMap::load(&nan, DepthKind::Depth, 2, 2).unwrap_err();
+        let err = load(&nan, DepthKind::Depth, 2, 2).unwrap_err();
         assert!(
             matches!(
                 err,
-                DepthError::NotFinite {
+                DepthError::Holes {
                     count: 2,
                     x: 1,
                     y: 0,
@@ -681,18 +745,21 @@ mod tests {
             ),
             "{err}"
         );
+        let none = write(dir.path(), "none.npy", &npy::encode_f32(&[1, 2], &[0.0; 2]));
+        let err = load(&none, DepthKind::Depth, 2, 1).unwrap_err();
+        assert!(matches!(err, DepthError::NoDepth { .. }), "{err}");
         let flat = write(dir.path(), "flat.npy", &npy::encode_f32(&[2, 2], &[3.0; 4]));
-        let err = DepthMap::load(&flat, DepthKind::Disparity, 2, 2).unwrap_err();
+        let err = load(&flat, DepthKind::Disparity, 2, 2).unwrap_err();
         assert!(matches!(err, DepthError::Constant { .. }), "{err}");
         let neg = write(
             dir.path(),
             "neg.npy",
             &npy::encode_f32(&[1, 2], &[1.0, -1.0]),
         );
-        let err = DepthMap::load(&neg, DepthKind::Depth, 2, 1).unwrap_err();
+        let err = load(&neg, DepthKind::Depth, 2, 1).unwrap_err();
         assert!(matches!(err, DepthError::NonPositive { x: 1, .. }), "{err}");
-        assert!(DepthMap::load(&neg, DepthKind::Disparity, 2, 1).is_ok());
-        let err = DepthMap::load(&neg, DepthKind::Disparity, 1, 2).unwrap_err();
+        assert!(load(&neg, DepthKind::Disparity, 2, 1).is_ok());
+        let err = load(&neg, DepthKind::Disparity, 1, 2).unwrap_err();
         assert!(err.to_string().contains("aspect"), "{err}");
     }
 

@@ -10,6 +10,7 @@ pub mod bench;
 pub mod bench_reshade;
 pub mod capture;
 pub mod depth;
+pub mod depth_holes;
 pub mod depth_net;
 pub mod depth_refine;
 pub mod display;

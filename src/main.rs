@@ -6,6 +6,7 @@ use anyhow::Result;
 use clap::{Args, Parser, Subcommand, ValueEnum};
 
 use reshader::depth::DepthKind;
+use reshader::depth_holes::HolePolicy;
 use reshader::depth_net::cli::{DepthInput, EstimateArgs};
 use reshader::interleave::{Blend, Board};
 use reshader::output;
@@ -180,6 +181,11 @@ struct SceneArgs {
     /// nearer), normalised so the scene spans depth 1 to 5 units [default: depth].
     #[arg(long, value_enum)]
     depth_kind: Option<DepthKind>,
+    /// Holes in a depth file (0, NaN or infinite values, where a sensor or renderer had
+    /// no depth): refuse the file, put them at the farthest depth (far: skies), or fill
+    /// them from their neighbours, following the photo's colour edges [default: refuse].
+    #[arg(long, value_enum)]
+    depth_holes: Option<HolePolicy>,
     /// Horizontal field of view in degrees [default: from EXIF 35 mm focal length, else 45].
     #[arg(long, allow_negative_numbers = true)]
     fov: Option<f64>,
@@ -199,9 +205,14 @@ impl SceneArgs {
             DepthInput::File(path) => Ok(SceneDepth::File {
                 path: path.clone(),
                 kind: self.depth_kind.unwrap_or(DepthKind::Depth),
+                holes: self.depth_holes.unwrap_or_default(),
             }),
             DepthInput::Estimate(_) if self.depth_kind.is_some() => Err(anyhow::anyhow!(
                 "--depth-kind says how to read a depth file; give the file with --depth FILE"
+            )),
+            DepthInput::Estimate(_) if self.depth_holes.is_some() => Err(anyhow::anyhow!(
+                "--depth-holes says what to do with holes in a depth file; give the file \
+                 with --depth FILE"
             )),
             DepthInput::Estimate(source) => Ok(SceneDepth::Estimate(Arc::new(
                 self.estimate

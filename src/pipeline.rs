@@ -11,6 +11,7 @@ use image::RgbImage;
 use interleave::{make_quilt, side_by_side, Board, BoardError, WeaveError, Weaver};
 
 use crate::depth::{DepthError, DepthKind, DepthMap, DepthReport};
+use crate::depth_holes::HolePolicy;
 use crate::depth_net::{DepthEstimator, DepthNetError, StageReport};
 use crate::output::{self, OutputError, Staging};
 use crate::photo::{Photo, PhotoError, SrgbImage};
@@ -71,8 +72,12 @@ pub enum Product {
 /// Where a scene's depth comes from.
 #[derive(Clone)]
 pub enum SceneDepth {
-    /// A depth file, read as `kind`.
-    File { path: PathBuf, kind: DepthKind },
+    /// A depth file, read as `kind`, its holes treated as `holes` says.
+    File {
+        path: PathBuf,
+        kind: DepthKind,
+        holes: HolePolicy,
+    },
     /// Embedded in the photo or from the depth network; shared so that a batch loads the
     /// network once.
     Estimate(Arc<DepthEstimator>),
@@ -143,10 +148,10 @@ impl Scene {
     ) -> Result<Self, PipelineError> {
         let photo_path = photo;
         let photo = t.time("load", || Photo::load(photo_path, fov))?;
-        let (w, h) = (photo.image.width(), photo.image.height());
         let (depth, depth_origin) = match depth {
-            SceneDepth::File { path, kind } => {
-                let (map, report) = t.time("load", || DepthMap::load(path, *kind, w, h))?;
+            SceneDepth::File { path, kind, holes } => {
+                let (map, report) =
+                    t.time("load", || DepthMap::load(path, *kind, *holes, &photo.image))?;
                 let origin = DepthOrigin::File {
                     path: path.clone(),
                     report,

@@ -13,6 +13,7 @@ use interleave::Board;
 use super::watch::{watch, WatchOptions};
 use super::{convert_batch, ConvertReport, Converter, FnConverter, OutLayout, PhotoReport};
 use crate::depth::DepthKind;
+use crate::depth_holes::HolePolicy;
 use crate::depth_net::cli::EstimateArgs;
 use crate::depth_net::{DepthEstimator, DepthNetError, DepthSource};
 use crate::pipeline::{self, Product, RenderOptions, SceneDepth};
@@ -76,6 +77,10 @@ pub struct GalleryArgs {
     /// Print one JSON object per photo on stdout (status, outputs, timings_ms, error).
     #[arg(long)]
     pub json: bool,
+    /// Holes in depth sidecars (0, NaN or infinite values): refuse the photo, put them at
+    /// the farthest depth (far), or fill them from their neighbours (fill).
+    #[arg(long, value_enum, default_value_t = HolePolicy::Refuse)]
+    pub depth_holes: HolePolicy,
     #[command(flatten)]
     pub relocate: RelocateArgs,
     #[command(flatten)]
@@ -360,6 +365,7 @@ pub fn pipeline_converter(args: &GalleryArgs) -> Result<impl Converter, GalleryE
     let only = args.only.clone();
     let calibration = args.calibration.clone();
     let depthiness = args.depthiness;
+    let holes = args.depth_holes;
     let relocator = args.relocate.build();
     let reshade_args = args.reshade.clone();
     let converter = FnConverter::new(
@@ -388,7 +394,7 @@ pub fn pipeline_converter(args: &GalleryArgs) -> Result<impl Converter, GalleryE
                 .map_err(|e| e.to_string())?;
             }
             let depth = match sidecar {
-                Some((path, kind)) => SceneDepth::File { path, kind },
+                Some((path, kind)) => SceneDepth::File { path, kind, holes },
                 None => SceneDepth::Estimate(Arc::clone(&estimator)),
             };
             let opts = RenderOptions {
@@ -439,13 +445,14 @@ fn fingerprint(
         .map(|p| crate::record::sha256_file(p).unwrap_or_else(|e| format!("unreadable: {e}")));
     format!(
         "reshader {}; board {} from {}; calibration {:?}; only {:?}; depthiness {:?}; \
-         {}; reshade {}; relocate {}",
+         depth holes {}; {}; reshade {}; relocate {}",
         env!("CARGO_PKG_VERSION"),
         board.name(),
         board.origin(),
         calibration,
         args.only,
         args.depthiness,
+        args.depth_holes.name(),
         estimator.describe(),
         reshader.description(),
         args.relocate.build().description()

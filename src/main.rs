@@ -240,6 +240,11 @@ struct RenderArgs {
     /// view width].
     #[arg(long, allow_negative_numbers = true)]
     depthiness: Option<f64>,
+    /// Scales the baseline of the cameras each view is reshaded for, as --depthiness scales
+    /// the views' [default: the widest, at most 1, that keeps the outermost ones within the
+    /// reach of the reshading model's training data, and at least --depthiness].
+    #[arg(long, allow_negative_numbers = true)]
+    shading_depthiness: Option<f64>,
     #[command(flatten)]
     filter: FilterArgs,
     /// Write only these products (comma-separated); run.json is always written.
@@ -292,6 +297,11 @@ struct SheetArgs {
     /// Scales the camera baseline, as `render --depthiness`.
     #[arg(long, allow_negative_numbers = true)]
     depthiness: Option<f64>,
+    /// Scales the baseline of the cameras each view is reshaded for, as --depthiness scales
+    /// the views' [default: the widest, at most 1, that keeps the outermost ones within the
+    /// reach of the reshading model's training data, and at least --depthiness].
+    #[arg(long, allow_negative_numbers = true)]
+    shading_depthiness: Option<f64>,
     /// Output image (.png).
     #[arg(long)]
     out: PathBuf,
@@ -446,8 +456,11 @@ fn check_model(args: &reshader::reshade_net::cli::ReshadeArgs) -> Result<()> {
 fn render(args: RenderArgs) -> Result<()> {
     // Everything that can be checked without the photo is checked before any work.
     output::check_output_dir(&args.out)?;
-    if let Some(depthiness) = args.depthiness {
-        reshader::views::check_depthiness(depthiness)?;
+    for d in [args.depthiness, args.shading_depthiness]
+        .into_iter()
+        .flatten()
+    {
+        reshader::views::check_depthiness(d)?;
     }
     check_model(&args.scene.reshade)?;
     let mut board = pipeline::load_board(&args.board, args.calibration.as_deref())?;
@@ -489,6 +502,7 @@ fn render(args: RenderArgs) -> Result<()> {
         calibration: args.calibration,
         focus: args.scene.focus,
         depthiness: args.depthiness,
+        shading_depthiness: args.shading_depthiness,
         only: args.only,
         sbs_pair: args.sbs_pair,
         out_dir: args.out,
@@ -578,7 +592,10 @@ fn sheet(args: SheetArgs) -> Result<()> {
     check_model(&args.scene.reshade)?;
     check_single_view_memory(&args.scene, true)?;
     let board = pipeline::load_board(&args.board, None)?;
-    if let Some(d) = args.depthiness {
+    for d in [args.depthiness, args.shading_depthiness]
+        .into_iter()
+        .flatten()
+    {
         reshader::views::check_depthiness(d)?;
     }
     let scene = load_scene(&args.scene)?;
@@ -587,19 +604,21 @@ fn sheet(args: SheetArgs) -> Result<()> {
     let sheet = pipeline::sheet::outer_views(
         &scene,
         &board,
-        args.scene.focus,
-        args.depthiness,
+        (args.scene.focus, args.depthiness),
+        args.shading_depthiness,
         &*reshader,
         &*relocator,
     )?;
     let bytes = output::encode_png(&args.out, &sheet.image)?;
     output::write_atomic(&args.out, &bytes)?;
     println!(
-        "{}: {} views {:+.3} and {:+.3} (depth-map units); the shading changes {:.1}% of the pixels by more than one 8-bit level, mean |difference| {:.4}",
+        "{}: {} views {:+.3} and {:+.3}, reshaded for cameras {:+.3} and {:+.3} (depth-map units); the shading changes {:.1}% of the pixels by more than one 8-bit level, mean |difference| {:.4}",
         args.out.display(),
         board.name(),
         sheet.offsets[0],
         sheet.offsets[1],
+        sheet.shading_offsets[0],
+        sheet.shading_offsets[1],
         100.0 * sheet.changed_share,
         sheet.mean_change
     );

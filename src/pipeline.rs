@@ -20,7 +20,7 @@ use crate::record::{
     RgbdRecord, RunRecord, Setting, Timings, Versions, ViewRecord,
 };
 use crate::relocate::{self, PreparedRelocation, RelocateError, Relocator};
-use crate::reshade::{ReshadeError, Reshader, TrainingFrame};
+use crate::reshade::{ReshadeError, Reshader, TrainingFrame, TRAINING_FOCUS, TRAINING_REACH};
 use crate::views::{robust_focus, robust_range, Intrinsics, ViewCamera, ViewError, ViewRig};
 
 #[derive(Debug, thiserror::Error)]
@@ -238,6 +238,8 @@ pub struct RenderOptions {
     pub focus: Option<f64>,
     /// `None`: fit the parallax budget (see [`ViewRig::fitting_depthiness`]).
     pub depthiness: Option<f64>,
+    /// The reshading cameras' baseline; `None`: see [`BoardRig::new`].
+    pub shading_depthiness: Option<f64>,
     /// Empty means everything.
     pub only: Vec<Product>,
     pub sbs_pair: Option<(usize, usize)>,
@@ -280,11 +282,27 @@ pub fn render(
         rig,
         focus_source,
         depthiness_source,
-    } = BoardRig::new(&scene, board, &fitted, opts.focus, opts.depthiness)?;
+        shading,
+        shading_source,
+    } = BoardRig::new(
+        &scene,
+        board,
+        &fitted,
+        (opts.focus, opts.depthiness),
+        opts.shading_depthiness,
+    )?;
     let (focus, depthiness) = (rig.focus, rig.depthiness);
     let cameras = rig.cameras(&fitted.reference);
+    let shading_centres = shading.centres();
     let frame = TrainingFrame::for_focus(focus);
-    let views = render_views(&fitted, &cameras, frame, reshader, relocator, &mut t)?;
+    let views = render_views(
+        &fitted,
+        (&cameras, &shading_centres),
+        frame,
+        reshader,
+        relocator,
+        &mut t,
+    )?;
 
     let mut staging = Staging::new(&opts.out_dir)?;
     write_products(opts, &views, sbs_pair, &mut staging, &mut t)?;
@@ -312,9 +330,11 @@ pub fn render(
             focus_source,
             depthiness_source,
             rig: Some(rig),
+            shading_depthiness: Some(shading.depthiness),
+            shading_depthiness_source: Some(shading_source),
             training_scale: frame.scale,
         },
-        views: view_records(&cameras, &fitted.reference),
+        views: view_records(&cameras, &shading_centres, &fitted.reference),
         reshade: reshader.description(),
         relocate: relocator.description(),
         blend: Some(opts.board.filter().blend.name().into()),
@@ -327,11 +347,22 @@ pub fn render(
 }
 
 /// A board's view rig for a scene, as `render` chooses it: the zero-parallax depth and
-/// the depthiness given, else the robust middle depth and the parallax budget's.
+/// the depthiness given, else the robust middle depth and the parallax budget's; and the
+/// cameras each view is reshaded for.
+///
+/// The two rigs differ because they answer different questions. The views' baseline is
+/// cut so that one photo's parallax stays believable (3 % of the view width), often to a
+/// few percent of the view cone. A viewer still moves across the whole cone, and a
+/// highlight moves with the angle it is seen from, so each view is reshaded for a camera
+/// on a wider baseline: the given shading depthiness, else the widest (at most the view
+/// cone) whose outermost cameras stay within [`TRAINING_REACH`] of the photo in the
+/// network's units, and never narrower than the views' own.
 pub struct BoardRig {
     pub rig: ViewRig,
     pub focus_source: Setting,
     pub depthiness_source: Setting,
+    pub shading: ViewRig,
+    pub shading_source: Setting,
 }
 
 impl BoardRig {
@@ -339,8 +370,8 @@ impl BoardRig {
         scene: &Scene,
         board: &Board,
         fitted: &Fitted,
-        focus: Option<f64>,
-        depthiness: Option<f64>,
+        (focus, depthiness): (Option<f64>, Option<f64>),
+        shading_depthiness: Option<f64>,
     ) -> Result<Self, PipelineError> {
         let (focus, focus_source) = scene.focus(focus);
         let cone = f64::from(board.view_cone_deg());
@@ -356,19 +387,40 @@ impl BoardRig {
                 Setting::ParallaxBudget,
             ),
         };
+        let (shading, shading_source) = match shading_depthiness {
+            Some(d) => (d, Setting::CommandLine),
+            None => (
+                reach_depthiness(cone).max(depthiness),
+                Setting::TrainingReach,
+            ),
+        };
         Ok(Self {
             rig: ViewRig::new(board.views(), cone, focus, depthiness)?,
             focus_source,
             depthiness_source,
+            shading: ViewRig::new(board.views(), cone, focus, shading)?,
+            shading_source,
         })
     }
 }
 
-/// Each camera's reshaded colours (still in the input camera's frame, in camera order),
-/// and the relocation prepared for them.
+/// The depthiness (at most 1) whose outermost cameras stand [`TRAINING_REACH`] from the
+/// photo's in the network's units, where the focus lies at [`TRAINING_FOCUS`].
+fn reach_depthiness(cone_deg: f64) -> f64 {
+    let full = TRAINING_FOCUS * (cone_deg.to_radians() / 2.0).tan();
+    if full > 0.0 {
+        (TRAINING_REACH / full).min(1.0)
+    } else {
+        1.0
+    }
+}
+
+/// Each view's colours reshaded for its shading camera (centres in depth-map units; the
+/// images still in the input camera's frame, in view order), and the relocation prepared
+/// for the views' `cameras`.
 pub fn reshade_views<'a>(
     fitted: &Fitted,
-    cameras: &[ViewCamera],
+    (cameras, shading): (&[ViewCamera], &[[f64; 3]]),
     frame: TrainingFrame,
     reshader: &dyn Reshader,
     relocator: &'a dyn Relocator,
@@ -382,20 +434,21 @@ pub fn reshade_views<'a>(
     let relocation = t.time("relocate_prepare", || {
         relocator.prepare(&fitted.image, &fitted.depth, &fitted.source, reach)
     })?;
-    let centres: Vec<[f64; 3]> = cameras.iter().map(|c| frame.camera(c.centre)).collect();
+    let centres: Vec<[f64; 3]> = shading.iter().map(|&c| frame.camera(c)).collect();
     let reshaded = t.time("reshade", || prepared.reshade_all(&centres))?;
     Ok((reshaded, relocation))
 }
 
 fn render_views(
     fitted: &Fitted,
-    cameras: &[ViewCamera],
+    (cameras, shading): (&[ViewCamera], &[[f64; 3]]),
     frame: TrainingFrame,
     reshader: &dyn Reshader,
     relocator: &dyn Relocator,
     t: &mut Timings,
 ) -> Result<Vec<RgbImage>, PipelineError> {
-    let (reshaded, relocation) = reshade_views(fitted, cameras, frame, reshader, relocator, t)?;
+    let (reshaded, relocation) =
+        reshade_views(fitted, (cameras, shading), frame, reshader, relocator, t)?;
     let mut views = Vec::with_capacity(cameras.len());
     for (colours, camera) in reshaded.into_iter().zip(cameras) {
         let view = t.time("relocate", || relocation.render(&colours, camera))?;
@@ -537,13 +590,19 @@ fn board_record(board: &Board) -> BoardRecord {
     }
 }
 
-fn view_records(cameras: &[ViewCamera], reference: &Intrinsics) -> Vec<ViewRecord> {
+fn view_records(
+    cameras: &[ViewCamera],
+    shading: &[[f64; 3]],
+    reference: &Intrinsics,
+) -> Vec<ViewRecord> {
     cameras
         .iter()
+        .zip(shading)
         .enumerate()
-        .map(|(index, cam)| ViewRecord {
+        .map(|(index, (cam, &shading_camera))| ViewRecord {
             index,
             camera: cam.centre,
+            shading_camera,
             principal_shift_px: [
                 cam.intrinsics.cx - reference.cx,
                 cam.intrinsics.cy - reference.cy,

@@ -90,6 +90,10 @@ pub struct Geometry {
     pub focus_source: Setting,
     pub depthiness_source: Setting,
     pub rig: Option<ViewRig>,
+    /// Scales the baseline of the cameras each view is reshaded for (1: the board's view
+    /// cone), independent of the views' own parallax.
+    pub shading_depthiness: Option<f64>,
+    pub shading_depthiness_source: Option<Setting>,
     /// Factor that took depth and camera offsets to the reshading network's units.
     pub training_scale: f64,
 }
@@ -100,6 +104,7 @@ pub enum Setting {
     CommandLine,
     RobustMiddleDepth,
     ParallaxBudget,
+    TrainingReach,
 }
 
 /// The RGB-D image and the settings a viewer needs to show it as the panel does.
@@ -120,6 +125,8 @@ pub struct ViewRecord {
     pub index: usize,
     /// Camera centre in the input camera's frame (OpenCV axes, depth-map units).
     pub camera: [f64; 3],
+    /// The camera its colours were reshaded for (same frame and units).
+    pub shading_camera: [f64; 3],
     /// Principal-point shift of the sheared projection relative to the unmoved view.
     pub principal_shift_px: [f64; 2],
 }

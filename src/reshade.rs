@@ -14,6 +14,10 @@ use crate::views::Intrinsics;
 /// scale-covariant: depth ×s with offsets ×s is the same picture).
 pub const TRAINING_FOCUS: f64 = 2.0;
 
+/// The farthest the training data's novel cameras stand from the input camera (its
+/// renderer's default shell, 0.1 to 0.3 units): the default shading cameras stay within it.
+pub const TRAINING_REACH: f64 = 0.3;
+
 #[derive(Debug, thiserror::Error)]
 pub enum ReshadeError {
     #[error("reshading model failed: {0}")]

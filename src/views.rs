@@ -246,6 +246,11 @@ impl ViewRig {
         (half_baseline / full_cone).min(1.0)
     }
 
+    /// Every view's camera centre (the rig moves cameras along x only).
+    pub fn centres(&self) -> Vec<[f64; 3]> {
+        self.offsets().into_iter().map(|x| [x, 0.0, 0.0]).collect()
+    }
+
     /// Every view's camera for output images whose unmoved camera is `reference`.
     pub fn cameras(&self, reference: &Intrinsics) -> Vec<ViewCamera> {
         self.offsets()

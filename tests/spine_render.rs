@@ -416,3 +416,46 @@ fn sheet_shows_the_outermost_views_and_their_shading_difference() {
     let result = run(&wrong);
     assert_eq!(result.status.code(), Some(1), "{}", stderr(&result));
 }
+
+/// Each view is reshaded for a camera on the shading baseline: by default the widest that
+/// keeps the outermost cameras within the training data's reach (0.3 units with the focus
+/// at 2: 0.3 / (2 tan 20°) = 0.41 of the tiny board's 40° cone), never narrower than the
+/// views' own; or as given.
+#[test]
+fn views_are_reshaded_for_cameras_on_the_shading_baseline() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (photo, depth) = write_scene(tmp.path());
+    let board = tiny_board();
+    let out = tmp.path().join("out").display().to_string();
+    let base = [
+        "render", &photo, "--depth", &depth, "--board", &board, "--focus", "2", "--only", "views",
+        "--out", &out,
+    ];
+    let record = |extra: &[&str]| -> Value {
+        let result = run(&[&base[..], extra].concat());
+        assert!(result.status.success(), "{}", stderr(&result));
+        serde_json::from_slice(&std::fs::read(tmp.path().join("out/run.json")).unwrap()).unwrap()
+    };
+    let outermost = |run: &Value, key: &str| run["views"][VIEWS - 1][key][0].as_f64().unwrap();
+    let full = 2.0 * 20f64.to_radians().tan();
+
+    let narrow = record(&["--depthiness", "0.1"]);
+    assert_eq!(
+        narrow["geometry"]["shading_depthiness_source"],
+        "training_reach"
+    );
+    assert!((outermost(&narrow, "camera") - 0.1 * full).abs() < 1e-9);
+    assert!((outermost(&narrow, "shading_camera") - 0.3).abs() < 1e-9);
+    let wide = record(&["--depthiness", "0.5"]);
+    assert!((outermost(&wide, "shading_camera") - 0.5 * full).abs() < 1e-9);
+    let given = record(&["--depthiness", "0.1", "--shading-depthiness", "0.05"]);
+    assert_eq!(
+        given["geometry"]["shading_depthiness_source"],
+        "command_line"
+    );
+    assert!((outermost(&given, "shading_camera") - 0.05 * full).abs() < 1e-9);
+
+    let bad = run(&[&base[..], &["--shading-depthiness", "-1"]].concat());
+    assert_eq!(bad.status.code(), Some(1), "{}", stderr(&bad));
+    assert!(stderr(&bad).contains("depthiness"), "{}", stderr(&bad));
+}

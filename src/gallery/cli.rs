@@ -406,6 +406,7 @@ pub fn pipeline_converter(args: &GalleryArgs) -> Result<impl Converter, GalleryE
                 calibration: calibration.clone(),
                 focus: None,
                 depthiness,
+                shading_depthiness: None,
                 only: only.clone(),
                 sbs_pair: None,
                 out_dir: out_dir.into(),

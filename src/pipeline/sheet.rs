@@ -21,8 +21,10 @@ pub struct Sheet {
     /// view; bottom row: the leftmost view | the difference of the two reshaded images
     /// ×[`DIFFERENCE_GAIN`] | the rightmost view.
     pub image: RgbImage,
-    /// The outermost cameras' x offsets, in depth-map units.
+    /// The outermost views' x offsets, in depth-map units.
     pub offsets: [f64; 2],
+    /// The x offsets of the cameras they are reshaded for.
+    pub shading_offsets: [f64; 2],
     /// Mean absolute difference of the two reshaded images over pixels and channels
     /// (0–1 encoded values).
     pub mean_change: f64,
@@ -30,25 +32,34 @@ pub struct Sheet {
     pub changed_share: f64,
 }
 
-/// The sheet of `scene` for `board`, with the zero-parallax depth and depthiness chosen as
-/// `render` chooses them.
+/// The sheet of `scene` for `board`, with the zero-parallax depth, the depthiness and the
+/// shading depthiness chosen as `render` chooses them.
 pub fn outer_views(
     scene: &Scene,
     board: &Board,
-    focus: Option<f64>,
-    depthiness: Option<f64>,
+    focus_depthiness: (Option<f64>, Option<f64>),
+    shading_depthiness: Option<f64>,
     reshader: &dyn Reshader,
     relocator: &dyn Relocator,
 ) -> Result<Sheet, PipelineError> {
     let (vw, vh) = board.view_size();
     let fitted = scene.fitted(vw, vh);
-    let rig = BoardRig::new(scene, board, &fitted, focus, depthiness)?.rig;
-    let cameras = rig.cameras(&fitted.reference);
-    let outer = [cameras[0], cameras[cameras.len() - 1]];
-    let frame = TrainingFrame::for_focus(rig.focus);
+    let rigs = BoardRig::new(scene, board, &fitted, focus_depthiness, shading_depthiness)?;
+    let cameras = rigs.rig.cameras(&fitted.reference);
+    let shading = rigs.shading.centres();
+    let last = cameras.len() - 1;
+    let outer = [cameras[0], cameras[last]];
+    let outer_shading = [shading[0], shading[last]];
+    let frame = TrainingFrame::for_focus(rigs.rig.focus);
     let mut t = Timings::default();
-    let (reshaded, relocation) =
-        reshade_views(&fitted, &outer, frame, reshader, relocator, &mut t)?;
+    let (reshaded, relocation) = reshade_views(
+        &fitted,
+        (&outer, &outer_shading),
+        frame,
+        reshader,
+        relocator,
+        &mut t,
+    )?;
     let left = relocation.render(&reshaded[0], &outer[0])?;
     let right = relocation.render(&reshaded[1], &outer[1])?;
     let (difference, mean_change, changed_share) = difference(&reshaded[0], &reshaded[1]);
@@ -63,6 +74,7 @@ pub fn outer_views(
     Ok(Sheet {
         image: grid(&tiles, 3),
         offsets: [outer[0].centre[0], outer[1].centre[0]],
+        shading_offsets: [outer_shading[0][0], outer_shading[1][0]],
         mean_change,
         changed_share,
     })

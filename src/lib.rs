@@ -27,6 +27,7 @@ pub mod pfm;
 pub mod photo;
 pub mod pipeline;
 pub mod preflight;
+pub mod progress;
 pub mod record;
 pub mod relocate;
 pub mod reshade;

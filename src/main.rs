@@ -402,6 +402,7 @@ fn main() -> ExitCode {
         .filter_level(level)
         .format_timestamp(None)
         .init();
+    reshader::progress::set_verbose(cli.verbose > 0);
     reshader::limits::set_max_memory(cli.max_memory);
     if let Err(e) = reshader::limits::apply_process_limit(cli.max_memory) {
         log::warn!("cannot set the memory limit of the process: {e}");
@@ -493,6 +494,7 @@ fn render(args: RenderArgs) -> Result<()> {
     let board_file = Path::new(&args.board)
         .is_file()
         .then(|| PathBuf::from(&args.board));
+    let views = board.views();
     let opts = RenderOptions {
         photo: args.scene.photo,
         depth,
@@ -506,6 +508,7 @@ fn render(args: RenderArgs) -> Result<()> {
         only: args.only,
         sbs_pair: args.sbs_pair,
         out_dir: args.out,
+        progress: reshader::progress::Progress::start(views as u64, "views", false),
     };
     let record = pipeline::render(&opts, &*reshader, &*args.relocate.build())?;
     println!(

@@ -15,6 +15,7 @@ use crate::depth_holes::HolePolicy;
 use crate::depth_net::{DepthEstimator, DepthNetError, StageReport};
 use crate::output::{self, OutputError, Staging};
 use crate::photo::{Photo, PhotoError, SrgbImage};
+use crate::progress::Progress;
 use crate::record::{
     BoardRecord, DepthRecord, FileDepthRecord, FileRecord, Geometry, Inputs, PhotoRecord,
     RgbdRecord, RunRecord, Setting, Timings, Versions, ViewRecord,
@@ -244,6 +245,8 @@ pub struct RenderOptions {
     pub only: Vec<Product>,
     pub sbs_pair: Option<(usize, usize)>,
     pub out_dir: PathBuf,
+    /// A bar over the views, on a terminal (hidden in batches, which count photos).
+    pub progress: Progress,
 }
 
 impl RenderOptions {
@@ -275,6 +278,8 @@ pub fn render(
     let mut t = Timings::default();
     let sbs_pair = opts.sbs_pair()?;
     let board = &opts.board;
+    let progress = &opts.progress;
+    progress.set_message("depth");
     let scene = Scene::load(&opts.photo, &opts.depth, opts.fov, &mut t)?;
     let (vw, vh) = board.view_size();
     let fitted = t.time("fit", || scene.fitted(vw, vh));
@@ -301,9 +306,11 @@ pub fn render(
         frame,
         reshader,
         relocator,
+        progress,
         &mut t,
     )?;
 
+    progress.set_message("writing");
     let mut staging = Staging::new(&opts.out_dir)?;
     write_products(opts, &views, sbs_pair, &mut staging, &mut t)?;
     let rgbd = if opts.wants(Product::Rgbd) {
@@ -343,7 +350,9 @@ pub fn render(
         timings_ms: t,
         versions: Versions::default(),
     };
-    commit_with_record(staging, record)
+    let record = commit_with_record(staging, record);
+    progress.finish();
+    record
 }
 
 /// A board's view rig for a scene, as `render` chooses it: the zero-parallax depth and
@@ -445,14 +454,20 @@ fn render_views(
     frame: TrainingFrame,
     reshader: &dyn Reshader,
     relocator: &dyn Relocator,
+    progress: &Progress,
     t: &mut Timings,
 ) -> Result<Vec<RgbImage>, PipelineError> {
+    // The network reshades all views in one call (key views and batches), so the bar
+    // counts views as they are relocated.
+    progress.set_message("reshading");
     let (reshaded, relocation) =
         reshade_views(fitted, (cameras, shading), frame, reshader, relocator, t)?;
+    progress.set_message("relocating");
     let mut views = Vec::with_capacity(cameras.len());
     for (colours, camera) in reshaded.into_iter().zip(cameras) {
         let view = t.time("relocate", || relocation.render(&colours, camera))?;
         views.push(view.to_rgb8());
+        progress.inc(1);
     }
     log::info!("rendered {} views", views.len());
     Ok(views)

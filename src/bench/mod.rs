@@ -19,6 +19,7 @@ use crate::engine::{self, EngineError};
 use crate::manifest::{self, ManifestError, Precision, Task};
 use crate::output::OutputError;
 use crate::photo::PhotoError;
+use crate::progress::Progress;
 use crate::relocate::{RelocateArgs, RelocateError, Relocator};
 use crate::reshade::Reshader;
 use crate::reshade_net::cli::{Head, ReshadeArgs, DEFAULT_MODEL_DIR};
@@ -348,8 +349,10 @@ pub fn run(args: &BenchArgs, command: &str) -> Result<Report, BenchError> {
     // not part of a conversion, and the peer and naive models are not the runtime's.
     let mut peak = None;
     let mut cases = Vec::new();
+    let progress = Progress::start((photos.len() * boards.len()) as u64, "cases", false);
     for (label, path) in &photos {
         for board in &boards {
+            progress.set_message(format!("{label} / {}", board.name()));
             let reset = memory::reset_peak();
             let mut case = stages::run_case(&ctx, label, path, board, args.runs)?;
             let case_peak = memory::vm_hwm_mib();
@@ -357,8 +360,10 @@ pub fn run(args: &BenchArgs, command: &str) -> Result<Report, BenchError> {
             peak = max_opt(peak, case_peak);
             log::info!("{label} / {}: done", board.name());
             cases.push(case);
+            progress.inc(1);
         }
     }
+    progress.finish();
     let peer = if args.no_peer {
         Vec::new()
     } else {

@@ -17,6 +17,7 @@ use crate::depth_holes::HolePolicy;
 use crate::depth_net::cli::EstimateArgs;
 use crate::depth_net::{DepthEstimator, DepthNetError, DepthSource};
 use crate::pipeline::{self, Product, RenderOptions, SceneDepth};
+use crate::progress::Progress;
 use crate::relocate::RelocateArgs;
 use crate::reshade::Reshader;
 use crate::reshade_net::cli::ReshadeArgs;
@@ -180,9 +181,12 @@ pub fn run_convert(args: &ConvertArgs) -> Result<(), GalleryError> {
     let converter = pipeline_converter(&args.gallery)?;
     let layout = layout(&args.gallery);
     let json = args.gallery.json;
+    let progress = Progress::start(photos.len() as u64, "photos", json);
     let summary = convert_batch(&photos, &layout, args.force, &converter, |r| {
-        print_report(r, json)
+        progress.suspend(|| print_report(r, json));
+        progress.inc(1);
     });
+    progress.finish();
     eprintln!("{summary}");
     if summary.all_ok() {
         Ok(())
@@ -294,10 +298,16 @@ pub fn run_watch(args: &WatchArgs) -> Result<(), GalleryError> {
         settle: Duration::from_millis(args.settle_ms),
         rescan: Duration::from_millis(args.rescan_ms.max(10)),
         inotify: !args.poll,
+        progress: Progress::start(0, "photos", args.gallery.json),
         ..WatchOptions::new(&args.dir, layout(&args.gallery))
     };
+    opts.progress
+        .set_message(format!("watching {}", args.dir.display()));
     let json = args.gallery.json;
-    let summary = watch(&opts, &converter, &stop, |r| print_report(r, json))?;
+    let summary = watch(&opts, &converter, &stop, |r| {
+        opts.progress.suspend(|| print_report(r, json))
+    })?;
+    opts.progress.finish();
     eprintln!("stopped: {summary}");
     Ok(())
 }
@@ -410,6 +420,7 @@ pub fn pipeline_converter(args: &GalleryArgs) -> Result<impl Converter, GalleryE
                 only: only.clone(),
                 sbs_pair: None,
                 out_dir: out_dir.into(),
+                progress: Progress::hidden(),
             };
             let record =
                 pipeline::render(&opts, &*reshader, &*relocator).map_err(|e| e.to_string())?;

@@ -22,6 +22,7 @@ use std::time::{Duration, Instant, SystemTime};
 use inotify::{EventMask, Inotify, WatchMask};
 
 use super::{convert_one, Converter, OutLayout, PhotoReport, Summary};
+use crate::progress::Progress;
 
 /// How many settle times a file that is still open for writing may stay unchanged
 /// before it is converted anyway.
@@ -54,6 +55,8 @@ pub struct WatchOptions {
     pub rescan: Duration,
     /// Use inotify when available; false forces polling.
     pub inotify: bool,
+    /// A bar over the photos found so far, on a terminal.
+    pub progress: Progress,
 }
 
 impl WatchOptions {
@@ -64,6 +67,7 @@ impl WatchOptions {
             settle: Duration::from_secs(2),
             rescan: Duration::from_secs(1),
             inotify: true,
+            progress: Progress::hidden(),
         }
     }
 }
@@ -180,7 +184,9 @@ pub fn watch(
             state.scan(&opts.dir)?;
             last_scan = Some(Instant::now());
         }
-        for photo in state.ready(opts.settle) {
+        let ready = state.ready(opts.settle);
+        opts.progress.grow(ready.len() as u64);
+        for photo in ready {
             if stop.load(Ordering::SeqCst) {
                 break;
             }
@@ -188,6 +194,7 @@ pub fn watch(
             state.handled(&photo);
             summary.add(report.status);
             emit(&report);
+            opts.progress.inc(1);
         }
     }
     Ok(summary)

@@ -28,6 +28,7 @@ pub mod photo;
 pub mod pipeline;
 pub mod preflight;
 pub mod progress;
+pub mod quilt_file;
 pub mod record;
 pub mod relocate;
 pub mod reshade;

@@ -46,6 +46,7 @@ Examples:
 
   # weave views you rendered elsewhere
   reshader weave out/views --board looking-glass-portrait --out panel.png
+  reshader weave out/quilt_qs8x6a0.75.png --board looking-glass-portrait --out panel.png
 
   reshader boards        # the built-in boards
 
@@ -83,7 +84,7 @@ enum Command {
     /// One picture of what reshading does to a photo on a board's outermost views.
     #[command(long_about = SHEET_ABOUT)]
     Sheet(SheetArgs),
-    /// Weave a directory of views (view_00.png …) into a panel frame.
+    /// Weave views (a directory of view_00.png …, or a quilt) into a panel frame.
     Weave(WeaveArgs),
     /// List the built-in boards.
     Boards,
@@ -309,8 +310,9 @@ struct SheetArgs {
 
 #[derive(Args)]
 struct WeaveArgs {
-    /// Directory holding view_00.png … view_{N-1}.png.
-    view_dir: PathBuf,
+    /// A directory holding view_00.png … view_{N-1}.png, or a quilt image: its layout
+    /// from its PNG metadata, else from its name (…_qs8x6a0.75.png).
+    input: PathBuf,
     #[arg(long)]
     board: String,
     #[arg(long)]
@@ -638,7 +640,11 @@ fn weave(args: WeaveArgs) -> Result<()> {
         &reshader::preflight::weave_estimate(&board),
         "",
     )?;
-    let panel = pipeline::weave_dir(&args.view_dir, &board)?;
+    let panel = if args.input.is_dir() {
+        pipeline::weave_dir(&args.input, &board)?
+    } else {
+        reshader::quilt_file::weave(&args.input, &board)?
+    };
     let bytes = output::encode_png(&args.out, &panel)?;
     output::write_atomic(&args.out, &bytes)?;
     Ok(())

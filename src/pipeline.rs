@@ -481,6 +481,16 @@ fn write_products(
     t: &mut Timings,
 ) -> Result<(), PipelineError> {
     let board = &opts.board;
+    // The quilt carries its layout in its metadata, so it is encoded apart.
+    if opts.wants(Product::Quilt) {
+        let (cols, rows) = board.quilt_grid();
+        let quilt = t.time("quilt", || make_quilt(views, cols, rows))?;
+        let name = board.quilt_file_name();
+        let bytes = t.time("encode", || {
+            crate::quilt_file::encode(&staging.final_path(&name), &quilt, &board.quilt_layout())
+        })?;
+        t.time("write", || staging.write(&name, &bytes))?;
+    }
     let mut stage_png = |rel: &str, image: &RgbImage, t: &mut Timings| {
         let bytes = t.time("encode", || {
             output::encode_png(&staging.final_path(rel), image)
@@ -491,11 +501,6 @@ fn write_products(
         for (i, view) in views.iter().enumerate() {
             stage_png(&format!("views/{}", output::view_file_name(i)), view, t)?;
         }
-    }
-    if opts.wants(Product::Quilt) {
-        let (cols, rows) = board.quilt_grid();
-        let quilt = t.time("quilt", || make_quilt(views, cols, rows))?;
-        stage_png(&board.quilt_file_name(), &quilt, t)?;
     }
     if opts.wants(Product::Panel) {
         let panel = weave(board, views, t)?;

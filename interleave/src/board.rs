@@ -475,6 +475,16 @@ impl Board {
         self.view_size.0 as f32 / self.view_size.1 as f32
     }
 
+    /// The layout of this board's quilt, for its file's metadata.
+    pub fn quilt_layout(&self) -> crate::quilt::QuiltLayout {
+        crate::quilt::QuiltLayout {
+            views: self.views(),
+            cols: self.quilt_cols,
+            rows: self.quilt_rows,
+            aspect: self.view_aspect(),
+        }
+    }
+
     /// The Looking-Glass quilt file name for this board's grid and view size.
     pub fn quilt_file_name(&self) -> String {
         crate::quilt::quilt_file_name(self.quilt_cols, self.quilt_rows, self.view_aspect())

@@ -21,5 +21,7 @@ pub use board::{Board, BoardError, Calibration, Lens, LookingGlass, SubpixelLayo
 pub use cells::{CellPattern, SubpixelCell};
 pub use filter::{Blend, UnknownBlend, ViewFilter};
 pub use mapping::{LensPhase, Mapping};
-pub use quilt::{make_quilt, quilt_file_name, side_by_side, split_quilt};
+pub use quilt::{
+    make_quilt, quilt_file_name, side_by_side, split_quilt, QuiltLayout, QuiltLayoutError,
+};
 pub use weave::{WeaveError, Weaver};

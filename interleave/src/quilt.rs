@@ -95,6 +95,185 @@ fn format_aspect(aspect: f32) -> String {
     trimmed.to_string()
 }
 
+/// How a quilt is laid out: the views it holds, its grid, and a view's aspect (width over
+/// height). Travels in the file's name (`qs{cols}x{rows}a{aspect}`, Looking Glass's
+/// convention, where the views fill the grid) and in PNG text metadata
+/// ([`QuiltLayout::text`]), which also says how many tiles hold views.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct QuiltLayout {
+    pub views: usize,
+    pub cols: u32,
+    pub rows: u32,
+    pub aspect: f32,
+}
+
+/// The PNG text keywords of a quilt's layout.
+pub const QUILT_VIEWS_KEY: &str = "Quilt views";
+pub const QUILT_COLUMNS_KEY: &str = "Quilt columns";
+pub const QUILT_ROWS_KEY: &str = "Quilt rows";
+pub const QUILT_ASPECT_KEY: &str = "Quilt aspect";
+
+/// Why a quilt's layout cannot be known or does not fit its image.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum QuiltLayoutError {
+    #[error(
+        "no quilt layout: the file has no `{QUILT_COLUMNS_KEY}` and `{QUILT_ROWS_KEY}` \
+         metadata and its name no `qs{{cols}}x{{rows}}a{{aspect}}` (e.g. \
+         photo_qs8x6a0.75.png)"
+    )]
+    Missing,
+    #[error("metadata `{key}`: {reason}")]
+    Field { key: &'static str, reason: String },
+    #[error("the metadata says {metadata} but the name says {name}; fix or remove one")]
+    Disagree { metadata: String, name: String },
+    #[error("a {width}x{height} image does not divide into {cols}x{rows} tiles")]
+    NotDivisible {
+        width: u32,
+        height: u32,
+        cols: u32,
+        rows: u32,
+    },
+}
+
+impl QuiltLayout {
+    /// The layout's PNG text chunks (keyword, value).
+    pub fn text(&self) -> Vec<(&'static str, String)> {
+        vec![
+            (QUILT_VIEWS_KEY, self.views.to_string()),
+            (QUILT_COLUMNS_KEY, self.cols.to_string()),
+            (QUILT_ROWS_KEY, self.rows.to_string()),
+            (QUILT_ASPECT_KEY, format_aspect(self.aspect)),
+        ]
+    }
+
+    /// The layout a file name carries (`…qs8x6a0.75…`); the grid is full of views.
+    pub fn from_file_name(name: &str) -> Option<QuiltLayout> {
+        name.match_indices("qs").find_map(|(at, _)| {
+            let rest = &name[at + 2..];
+            let (cols, rest) = leading(rest, |c| c.is_ascii_digit())?;
+            let rest = rest.strip_prefix('x')?;
+            let (rows, rest) = leading(rest, |c| c.is_ascii_digit())?;
+            let rest = rest.strip_prefix('a')?;
+            let (aspect, _) = leading(rest, |c| c.is_ascii_digit() || c == '.')?;
+            let (cols, rows): (u32, u32) = (cols.parse().ok()?, rows.parse().ok()?);
+            let aspect: f32 = aspect.trim_end_matches('.').parse().ok()?;
+            let views = usize::try_from(u64::from(cols) * u64::from(rows)).ok()?;
+            (cols > 0 && rows > 0 && aspect.is_finite() && aspect > 0.0).then_some(QuiltLayout {
+                views,
+                cols,
+                rows,
+                aspect,
+            })
+        })
+    }
+
+    /// The layout in the text chunks of a `width`x`height` PNG, `None` when it has none
+    /// of the quilt keys. Columns and rows are required together; views default to the
+    /// whole grid and the aspect to the tiles' own.
+    pub fn from_text(
+        text: &[(String, String)],
+        (width, height): (u32, u32),
+    ) -> Result<Option<QuiltLayout>, QuiltLayoutError> {
+        let get = |key: &'static str| {
+            text.iter()
+                .find(|(k, _)| k == key)
+                .map(|(_, v)| (key, v.trim()))
+        };
+        let keys = [
+            QUILT_VIEWS_KEY,
+            QUILT_COLUMNS_KEY,
+            QUILT_ROWS_KEY,
+            QUILT_ASPECT_KEY,
+        ];
+        if keys.iter().all(|k| get(k).is_none()) {
+            return Ok(None);
+        }
+        let count = |key: &'static str| -> Result<Option<u32>, QuiltLayoutError> {
+            get(key)
+                .map(|(key, v)| {
+                    v.parse::<u32>().ok().filter(|n| *n > 0).ok_or_else(|| {
+                        QuiltLayoutError::Field {
+                            key,
+                            reason: format!("expected a whole number of at least 1, got `{v}`"),
+                        }
+                    })
+                })
+                .transpose()
+        };
+        let required = |key: &'static str| {
+            count(key)?.ok_or(QuiltLayoutError::Field {
+                key,
+                reason: "missing (the other quilt keys are present)".into(),
+            })
+        };
+        let (cols, rows) = (required(QUILT_COLUMNS_KEY)?, required(QUILT_ROWS_KEY)?);
+        let tiles = u64::from(cols) * u64::from(rows);
+        let views = match count(QUILT_VIEWS_KEY)? {
+            Some(v) if u64::from(v) > tiles => {
+                return Err(QuiltLayoutError::Field {
+                    key: QUILT_VIEWS_KEY,
+                    reason: format!("{v} views do not fit a {cols}x{rows} grid"),
+                })
+            }
+            Some(v) => v as usize,
+            None => tiles as usize,
+        };
+        let aspect = match get(QUILT_ASPECT_KEY) {
+            None => (width / cols) as f32 / (height / rows).max(1) as f32,
+            Some((key, v)) => v
+                .parse::<f32>()
+                .ok()
+                .filter(|a| a.is_finite() && *a > 0.0)
+                .ok_or_else(|| QuiltLayoutError::Field {
+                    key,
+                    reason: format!("expected a positive number, got `{v}`"),
+                })?,
+        };
+        Ok(Some(QuiltLayout {
+            views,
+            cols,
+            rows,
+            aspect,
+        }))
+    }
+
+    /// The layout of a `width`x`height` quilt named `name` with text chunks `text`: the
+    /// metadata's, else the name's. When both are there they must agree on the grid.
+    pub fn resolve(
+        name: &str,
+        text: &[(String, String)],
+        (width, height): (u32, u32),
+    ) -> Result<QuiltLayout, QuiltLayoutError> {
+        let from_name = QuiltLayout::from_file_name(name);
+        let layout = match (QuiltLayout::from_text(text, (width, height))?, from_name) {
+            (Some(meta), Some(name)) if (meta.cols, meta.rows) != (name.cols, name.rows) => {
+                return Err(QuiltLayoutError::Disagree {
+                    metadata: format!("{}x{}", meta.cols, meta.rows),
+                    name: format!("{}x{}", name.cols, name.rows),
+                })
+            }
+            (Some(meta), _) => meta,
+            (None, Some(name)) => name,
+            (None, None) => return Err(QuiltLayoutError::Missing),
+        };
+        if width == 0 || height == 0 || width % layout.cols != 0 || height % layout.rows != 0 {
+            return Err(QuiltLayoutError::NotDivisible {
+                width,
+                height,
+                cols: layout.cols,
+                rows: layout.rows,
+            });
+        }
+        Ok(layout)
+    }
+}
+
+/// The longest prefix of `s` whose characters pass `keep` (non-empty), and the rest.
+fn leading(s: &str, keep: impl Fn(char) -> bool) -> Option<(&str, &str)> {
+    let end = s.find(|c| !keep(c)).unwrap_or(s.len());
+    (end > 0).then(|| s.split_at(end))
+}
+
 /// A stereo pair side by side: `left` then `right`, top-aligned; a shorter image leaves
 /// black below it.
 pub fn side_by_side(left: &RgbImage, right: &RgbImage) -> RgbImage {
@@ -136,6 +315,91 @@ mod tests {
         assert_eq!(quilt_file_name(11, 6, 0.5625), "quilt_qs11x6a0.5625.png");
         assert_eq!(quilt_file_name(5, 9, 16.0 / 9.0), "quilt_qs5x9a1.7778.png");
         assert_eq!(quilt_file_name(2, 1, 1.0), "quilt_qs2x1a1.png");
+    }
+
+    #[test]
+    fn layout_from_names() {
+        let l = QuiltLayout::from_file_name("quilt_qs8x6a0.75.png").unwrap();
+        assert_eq!((l.views, l.cols, l.rows, l.aspect), (48, 8, 6, 0.75));
+        let l = QuiltLayout::from_file_name("hologram_qs5x9a1.77778").unwrap();
+        assert_eq!((l.cols, l.rows, l.aspect), (5, 9, 1.77778));
+        // Other "qs" in the name are passed over.
+        let l = QuiltLayout::from_file_name("qsmall_qs2x1a1.png").unwrap();
+        assert_eq!((l.cols, l.rows, l.aspect), (2, 1, 1.0));
+        for bad in [
+            "quilt.png",
+            "qs8x6.png",
+            "qs0x6a1.png",
+            "qs8x6a.png",
+            "qsAx6a1",
+        ] {
+            assert_eq!(QuiltLayout::from_file_name(bad), None, "{bad}");
+        }
+    }
+
+    #[test]
+    fn layout_from_metadata_and_its_errors() {
+        let text = |pairs: &[(&str, &str)]| -> Vec<(String, String)> {
+            pairs
+                .iter()
+                .map(|(k, v)| (k.to_string(), v.to_string()))
+                .collect()
+        };
+        let full = QuiltLayout {
+            views: 45,
+            cols: 8,
+            rows: 6,
+            aspect: 0.75,
+        };
+        let pairs: Vec<(String, String)> = full
+            .text()
+            .into_iter()
+            .map(|(k, v)| (k.to_string(), v))
+            .collect();
+        assert_eq!(QuiltLayout::from_text(&pairs, (80, 60)), Ok(Some(full)));
+        assert_eq!(
+            QuiltLayout::from_text(&text(&[("Software", "x")]), (80, 60)),
+            Ok(None)
+        );
+        let err = QuiltLayout::from_text(&text(&[(QUILT_COLUMNS_KEY, "8")]), (80, 60)).unwrap_err();
+        assert_eq!(
+            err.to_string(),
+            "metadata `Quilt rows`: missing (the other quilt keys are present)"
+        );
+        let err = QuiltLayout::from_text(
+            &text(&[(QUILT_COLUMNS_KEY, "8"), (QUILT_ROWS_KEY, "six")]),
+            (80, 60),
+        )
+        .unwrap_err();
+        assert!(err.to_string().contains("got `six`"), "{err}");
+        let err = QuiltLayout::from_text(
+            &text(&[
+                (QUILT_COLUMNS_KEY, "2"),
+                (QUILT_ROWS_KEY, "2"),
+                (QUILT_VIEWS_KEY, "5"),
+            ]),
+            (80, 60),
+        )
+        .unwrap_err();
+        assert!(
+            err.to_string().contains("5 views do not fit a 2x2 grid"),
+            "{err}"
+        );
+        // Name and metadata disagreeing, neither present, tiles that do not divide.
+        let meta = text(&[(QUILT_COLUMNS_KEY, "4"), (QUILT_ROWS_KEY, "2")]);
+        let err = QuiltLayout::resolve("x_qs8x6a0.75.png", &meta, (80, 60)).unwrap_err();
+        assert!(matches!(err, QuiltLayoutError::Disagree { .. }), "{err}");
+        let err = QuiltLayout::resolve("x.png", &[], (80, 60)).unwrap_err();
+        assert_eq!(err, QuiltLayoutError::Missing);
+        let err = QuiltLayout::resolve("x.png", &meta, (81, 60)).unwrap_err();
+        assert!(
+            err.to_string()
+                .contains("81x60 image does not divide into 4x2"),
+            "{err}"
+        );
+        // Metadata without the name, and the aspect from the tiles when not given.
+        let l = QuiltLayout::resolve("x.png", &meta, (80, 60)).unwrap();
+        assert_eq!((l.views, l.cols, l.rows, l.aspect), (8, 4, 2, 20.0 / 30.0));
     }
 
     #[test]

@@ -10,7 +10,7 @@
 
 use std::fmt;
 use std::path::Path;
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 
 /// The ceiling when `--max-memory` is not given: room for a 50-megapixel photo on a
 /// small board computer with 4 GiB or more.
@@ -169,6 +169,87 @@ pub fn apply_process_limit(bytes: u64) -> std::io::Result<()> {
         return Err(std::io::Error::last_os_error());
     }
     Ok(())
+}
+
+/// Raises the process's data-segment limit back to its hard limit, for a run that is
+/// ending anyway (see [`install_panic_hook`]).
+fn lift_process_limit() {
+    let mut limit = libc::rlimit {
+        rlim_cur: 0,
+        rlim_max: 0,
+    };
+    // SAFETY: the pointer is to a live rlimit struct.
+    if unsafe { libc::getrlimit(libc::RLIMIT_DATA, &mut limit) } == 0 {
+        limit.rlim_cur = limit.rlim_max;
+        // SAFETY: as above. A failure leaves the limit as it was, which is no worse.
+        unsafe { libc::setrlimit(libc::RLIMIT_DATA, &limit) };
+    }
+}
+
+/// Whether a panic's message reports a failed allocation: tract panics ("failed to
+/// allocate …") when the kernel refuses one of its buffers under the ceiling.
+pub fn is_out_of_memory(panic_message: &str) -> bool {
+    panic_message.contains("failed to allocate")
+}
+
+/// The message of a panic payload (a `&str` or a `String`), without allocating.
+pub fn panic_text(payload: &(dyn std::any::Any + Send)) -> &str {
+    payload
+        .downcast_ref::<&str>()
+        .copied()
+        .or_else(|| payload.downcast_ref::<String>().map(String::as_str))
+        .unwrap_or("")
+}
+
+static RAN_OUT_OF_MEMORY: AtomicBool = AtomicBool::new(false);
+
+/// Whether a panic of this process was a failed allocation (see [`install_panic_hook`]).
+pub fn ran_out_of_memory() -> bool {
+    RAN_OUT_OF_MEMORY.load(Ordering::Relaxed)
+}
+
+/// Replaces the default panic hook so that running out of memory under the ceiling ends
+/// the run instead of hanging it. With `RUST_BACKTRACE` set, the default hook holds
+/// std's backtrace lock while it resolves the backtrace, which allocates; when that
+/// allocation fails too, std's out-of-memory handler waits for the same lock to print
+/// its own backtrace, and the process hangs for ever. So a failed allocation's panic is
+/// only recorded (the caller that catches it reports it: a model load, a gallery photo,
+/// or `main`, as [`OutOfMemory`]), and before any other panic is printed the ceiling is
+/// lifted, so that printing it cannot run out of memory.
+pub fn install_panic_hook() {
+    let default = std::panic::take_hook();
+    std::panic::set_hook(Box::new(move |info| {
+        if is_out_of_memory(panic_text(info.payload())) {
+            RAN_OUT_OF_MEMORY.store(true, Ordering::Relaxed);
+            return;
+        }
+        lift_process_limit();
+        default(info);
+    }));
+}
+
+/// A run that ran out of memory under the ceiling although the estimate made before it
+/// said it would fit.
+#[derive(Clone, Debug, thiserror::Error)]
+#[error(
+    "ran out of memory under --max-memory {}{what}; raise --max-memory (the memory \
+     estimate made before the run was too low: please report the command)",
+    Bytes(*.ceiling)
+)]
+pub struct OutOfMemory {
+    /// What was running, with a leading space and a preposition (" while loading …"),
+    /// or empty.
+    pub what: String,
+    pub ceiling: u64,
+}
+
+impl OutOfMemory {
+    pub fn now(what: impl Into<String>) -> Self {
+        Self {
+            what: what.into(),
+            ceiling: max_memory(),
+        }
+    }
 }
 
 /// A byte count for messages: "1.5 GiB", "300 MiB".

@@ -26,7 +26,8 @@ else from the shipped depth network; --depth FILE uses a depth map of your own.
 The main job is `render`; every stage also runs alone for scripting and debugging.
 
 Examples:
-  # everything for a Looking Glass Portrait: views/, quilt, panel.png, sbs.png, rgbd.png, run.json
+  # everything for a Looking Glass Portrait: views/, quilt, panel.png, sbs.png, rgbd.png,
+  # preview.gif, preview.html, run.json
   reshader render examples/pumpkin/pumpkin.jpg --board looking-glass-portrait --out out/
 
   # the same with a depth map you have (here the example's relative disparity)
@@ -69,7 +70,7 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
-    /// Render all views of a board and write views/, the quilt, panel.png, sbs.png, rgbd.png and run.json.
+    /// Render all views of a board and write views/, the quilt, panel.png, sbs.png, rgbd.png, the previews and run.json.
     #[command(long_about = RENDER_ABOUT)]
     Render(RenderArgs),
     /// Estimate depth for a photo: the depth it carries, or the depth network.
@@ -121,6 +122,9 @@ Writes into --out:
   sbs.png                              side-by-side pair (outermost views, or --sbs-pair)
   rgbd.png                             the photo beside its depth (grey, near = white),
                                        focus and depthiness in its text chunks
+  preview.gif                          the views swept left to right and back
+  preview.html                         one self-contained page showing the view under
+                                       the pointer or a finger
   run.json                             inputs with sha256 (and where depth came from),
                                        board, camera per view, timings
 
@@ -409,12 +413,20 @@ fn main() -> ExitCode {
     if let Err(e) = reshader::limits::apply_process_limit(cli.max_memory) {
         log::warn!("cannot set the memory limit of the process: {e}");
     }
-    match run(cli.command) {
-        Ok(()) => ExitCode::SUCCESS,
-        Err(e) => {
+    reshader::limits::install_panic_hook();
+    let outcome = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| run(cli.command)));
+    match outcome {
+        Ok(Ok(())) => ExitCode::SUCCESS,
+        Ok(Err(e)) => {
             eprintln!("error: {e}");
             ExitCode::FAILURE
         }
+        // A failed allocation is the ceiling, not a bug: an error like any other.
+        Err(_) if reshader::limits::ran_out_of_memory() => {
+            eprintln!("error: {}", reshader::limits::OutOfMemory::now(""));
+            ExitCode::FAILURE
+        }
+        Err(panic) => std::panic::resume_unwind(panic),
     }
 }
 

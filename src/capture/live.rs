@@ -55,6 +55,8 @@ pub enum LiveError {
     ReshadeNet(#[from] NetError),
     #[error(transparent)]
     Reshade(#[from] ReshadeError),
+    #[error(transparent)]
+    Memory(#[from] crate::preflight::OverBudget),
     #[error("{0}")]
     Options(String),
 }
@@ -171,6 +173,11 @@ pub fn run_live(args: &LiveArgs) -> Result<(), LiveError> {
     }
     let board_name = args.board.as_deref().ok_or(LiveError::NoBoard)?;
     let board = crate::pipeline::load_board(board_name, args.calibration.as_deref())?;
+    // Before the networks load: the frame size asked for (--size), else no larger
+    // than the views; once the camera says what it delivers, again with that.
+    let work = args.work_size.unwrap_or_else(|| board.view_size());
+    let asked = args.size.unwrap_or(work);
+    check_memory(args, &board, asked)?;
     let depth = live_depth(args)?;
     let request = CameraRequest {
         format: args.format,
@@ -179,6 +186,9 @@ pub fn run_live(args: &LiveArgs) -> Result<(), LiveError> {
         paced: args.realtime,
     };
     let source = super::open_source(&args.camera, &request)?;
+    if source.size() != asked {
+        check_memory(args, &board, source.size())?;
+    }
     let sink = crate::display::open_sink(&args.display, &args.out)?;
     let stop = crate::gallery::cli::stop_on_signals().map_err(LiveError::Signal)?;
     let opts = LiveOptions {
@@ -196,6 +206,51 @@ pub fn run_live(args: &LiveArgs) -> Result<(), LiveError> {
         );
     }
     Ok(())
+}
+
+/// Refuses a live run whose frames of `frame` pixels would not fit --max-memory: the
+/// estimate of rendering one such photo for the board at the working size, with the
+/// networks live loads, the panel and no quilt.
+fn check_memory(args: &LiveArgs, board: &Board, frame: (u32, u32)) -> Result<(), LiveError> {
+    let work = args.work_size.unwrap_or_else(|| board.view_size());
+    let (pw, ph) = board.panel_size();
+    let depth = args.depth == LiveDepthMode::Network;
+    let reshading = depth && named_reshade_model(&args.reshade).is_some();
+    let size = crate::preflight::RenderSize {
+        photo: frame,
+        views: board.views() as u32,
+        view: work,
+        quilt_pixels: 0,
+        panel_pixels: u64::from(pw) * u64::from(ph),
+        table_bytes: board.filter().table_bytes_per_subpixel(),
+        network: reshading.then_some((
+            args.reshade.reshade_scale,
+            crate::preflight::views_at_once(&args.reshade),
+        )),
+        depth_network: depth,
+    };
+    crate::preflight::check_memory(
+        format!(
+            "showing {}x{} frames on {} ({} views of {}x{})",
+            frame.0,
+            frame.1,
+            board.name(),
+            board.views(),
+            work.0,
+            work.1
+        ),
+        &crate::preflight::estimate(&size),
+        " (or use a smaller --work-size or --size)",
+    )?;
+    Ok(())
+}
+
+/// The reshading model named by --model or $RESHADER_MODEL, unless it is `none`.
+fn named_reshade_model(args: &ReshadeArgs) -> Option<PathBuf> {
+    args.model
+        .clone()
+        .or_else(|| std::env::var_os("RESHADER_MODEL").map(PathBuf::from))
+        .filter(|model| model.as_os_str() != "none")
 }
 
 /// The depth stage of `--depth network`, loaded before capture starts so that a bad model
@@ -238,13 +293,9 @@ fn live_depth(args: &LiveArgs) -> Result<Option<LiveDepth>, LiveError> {
 /// The reshading network when one is named explicitly (see [`LIVE_ABOUT`] for why live
 /// has no default model), built before the camera opens so that a bad model fails first.
 fn live_reshader(args: &ReshadeArgs) -> Result<Option<Box<dyn Reshader + Send + Sync>>, LiveError> {
-    let named = args
-        .model
-        .clone()
-        .or_else(|| std::env::var_os("RESHADER_MODEL").map(PathBuf::from));
-    match named {
-        Some(model) if model.as_os_str() != "none" => Ok(Some(args.build()?)),
-        _ => Ok(None),
+    match named_reshade_model(args) {
+        Some(_) => Ok(Some(args.build()?)),
+        None => Ok(None),
     }
 }
 

@@ -133,19 +133,11 @@ fn guarded<T>(
     step: impl FnOnce() -> Result<T, EngineError>,
 ) -> Result<T, EngineError> {
     std::panic::catch_unwind(std::panic::AssertUnwindSafe(step)).unwrap_or_else(|panic| {
-        let reason = panic
-            .downcast_ref::<&str>()
-            .map(|s| s.to_string())
-            .or_else(|| panic.downcast_ref::<String>().cloned())
-            .unwrap_or_else(|| "unknown".into());
+        let reason = crate::limits::panic_text(&*panic);
         // tract panics when an allocation fails (the kernel holds the heap to
         // --max-memory): that is the ceiling, not a broken model.
-        let message = if reason.contains("failed to allocate") {
-            format!(
-                "out of memory while loading it under --max-memory {} (tract: {reason}); \
-                 raise --max-memory",
-                crate::limits::Bytes(crate::limits::max_memory())
-            )
+        let message = if crate::limits::is_out_of_memory(reason) {
+            crate::limits::OutOfMemory::now(" while loading it").to_string()
         } else {
             format!("the graph is malformed (tract failed: {reason})")
         };

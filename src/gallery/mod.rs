@@ -345,6 +345,10 @@ pub fn convert_one(
     }
     let result = match catch_unwind(AssertUnwindSafe(|| converter.convert(photo, out_dir))) {
         Ok(result) => result,
+        Err(panic) if crate::limits::is_out_of_memory(crate::limits::panic_text(&*panic)) => Err(
+            crate::limits::OutOfMemory::now(format!(" while converting {}", photo.display()))
+                .to_string(),
+        ),
         Err(panic) => Err(format!(
             "internal error while converting {}: {}",
             photo.display(),

@@ -64,6 +64,25 @@ pub enum RangeFormat {
     RangeLinear,
 }
 
+/// The names the metadata uses, for messages.
+impl std::fmt::Display for Container {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Self::GDepth => "GDepth",
+            Self::DynamicDepth => "Dynamic Depth",
+        })
+    }
+}
+
+impl std::fmt::Display for RangeFormat {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Self::RangeInverse => "RangeInverse",
+            Self::RangeLinear => "RangeLinear",
+        })
+    }
+}
+
 /// Depth found in a photo, in the units its metadata gives (metres on phones).
 #[derive(Clone, Debug, PartialEq)]
 pub struct EmbeddedDepth {

@@ -182,7 +182,11 @@ pub fn run(args: &EvalArgs) -> Result<Vec<ExampleReport>, EvalError> {
     for dir in &dirs {
         let example = load_example(dir, args.exposure, args.gamma)?;
         let (report, sheet) = evaluate(&example, args.border.into(), reshader.as_ref())?;
-        log::info!("{}: {:?}", report.id, report.scores);
+        log::info!(
+            "{}: {}",
+            report.id,
+            serde_json::to_string(&report.scores).unwrap_or_default()
+        );
         if let Some(out) = &args.sheets {
             write_sheet(out, &report.id, &sheet)?;
         }
@@ -581,11 +585,11 @@ fn write_sheet(dir: &Path, id: &str, images: &[SrgbImage]) -> Result<(), EvalErr
 /// the reshading model adds to the LDI's novel views.
 pub fn table(reports: &[ExampleReport], args: &EvalArgs, model: &str) -> String {
     let mut out = format!(
-        "{} examples, tone mapping x{} gamma {}, LDI border {:?}, reshading model {model}; PSNR dB / SSIM against the ground-truth novel view\n\n",
+        "{} examples, tone mapping x{} gamma {}, LDI border {}, reshading model {model}; PSNR dB / SSIM against the ground-truth novel view\n\n",
         reports.len(),
         args.exposure,
         args.gamma,
-        args.border
+        crate::ldi::Border::from(args.border)
     );
     out.push_str(
         "| method | colours | all | visible in input | disoccluded |\n|---|---|---|---|---|\n",

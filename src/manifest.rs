@@ -106,6 +106,22 @@ pub enum Dim {
     Symbol(String),
 }
 
+/// As the manifest writes it: 3, or "H".
+impl std::fmt::Display for Dim {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Self::Fixed(n) => write!(f, "{n}"),
+            Self::Symbol(s) => write!(f, "{s:?}"),
+        }
+    }
+}
+
+/// A shape as the manifest writes it: [1, 3, "H", "W"].
+pub fn shape_text(shape: &[Dim]) -> String {
+    let dims: Vec<String> = shape.iter().map(Dim::to_string).collect();
+    format!("[{}]", dims.join(", "))
+}
+
 #[derive(Clone, Debug, Deserialize)]
 pub struct TensorSpec {
     pub name: String,
@@ -403,8 +419,8 @@ pub fn lobe_spec(path: &Path, manifest: &Manifest) -> Result<LobeSpec, ManifestE
         return err(
             &format!("outputs[{i}].shape"),
             format!(
-                "of \"lobes\" has {:?} channels; {k} lobes (field `lobes`) need {}",
-                out.shape.get(1),
+                "of \"lobes\" has {} channels; {k} lobes (field `lobes`) need {}",
+                out.shape.get(1).map_or("no".into(), Dim::to_string),
                 spec.channels()
             ),
         );
@@ -525,8 +541,9 @@ fn check_tensor(path: &Path, field: &str, t: &TensorSpec) -> Result<(), Manifest
         return err(
             "shape",
             format!(
-                "of {:?} is {:?}; expected {rank} axes with batch 1",
-                t.name, t.shape
+                "of {:?} is {}; expected {rank} axes with batch 1",
+                t.name,
+                shape_text(&t.shape)
             ),
         );
     }
@@ -534,10 +551,7 @@ fn check_tensor(path: &Path, field: &str, t: &TensorSpec) -> Result<(), Manifest
         if t.shape[1] != Dim::Fixed(c) {
             return err(
                 "shape",
-                format!(
-                    "of {:?} has {:?} channels; expected {c}",
-                    t.name, t.shape[1]
-                ),
+                format!("of {:?} has {} channels; expected {c}", t.name, t.shape[1]),
             );
         }
     }

@@ -159,6 +159,16 @@ pub enum FovSource {
     Default,
 }
 
+impl std::fmt::Display for FovSource {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Self::CommandLine => "--fov",
+            Self::Exif35mmFocalLength => "from the EXIF 35 mm focal length",
+            Self::Default => "the default",
+        })
+    }
+}
+
 #[derive(Clone, Debug)]
 pub struct Photo {
     pub path: PathBuf,
@@ -183,7 +193,7 @@ impl Photo {
             },
         };
         log::info!(
-            "photo {}: {}x{}, horizontal FOV {hfov_deg:.1}° ({fov_source:?})",
+            "photo {}: {}x{}, horizontal FOV {hfov_deg:.1}° ({fov_source})",
             path.display(),
             image.width(),
             image.height()

@@ -96,7 +96,7 @@ pub fn run_depth(args: &DepthCommandArgs) -> Result<String, DepthCommandError> {
     );
     let what = match (&report.model, &report.embedded) {
         (Some(model), _) => model.clone(),
-        (None, Some(e)) => format!("{:?} {:?}", e.container, e.format),
+        (None, Some(e)) => format!("{} {}", e.container, e.format),
         (None, None) => String::new(),
     };
     let [lo, hi] = report.depth_range;

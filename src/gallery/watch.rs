@@ -161,9 +161,9 @@ pub fn watch(
     };
     if events.is_none() {
         log::info!(
-            "watching {} by polling every {:?}",
+            "watching {} by polling every {:.1} s",
             opts.dir.display(),
-            opts.rescan
+            opts.rescan.as_secs_f64()
         );
     }
     let mut state = State::default();

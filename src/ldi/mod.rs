@@ -37,6 +37,16 @@ pub enum Border {
     Crop,
 }
 
+/// The name `--border` takes.
+impl std::fmt::Display for Border {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Self::Extend => "extend",
+            Self::Crop => "crop",
+        })
+    }
+}
+
 /// Where the inpainted background behind occluders takes its colours from in a view.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
 #[serde(rename_all = "snake_case")]
@@ -216,7 +226,18 @@ impl Ldi {
             reach,
             border_margin_px: margin,
         };
-        log::info!("LDI built: {stats:?}");
+        log::info!(
+            "LDI built: {}x{}, {} contours cut ({} dropped), {} vertices, {} in the \
+             background band, {}, border margin {} px",
+            stats.width,
+            stats.height,
+            stats.contours_kept,
+            stats.contours_dropped,
+            stats.vertices,
+            stats.band_samples,
+            crate::limits::Bytes(stats.memory_bytes as u64),
+            stats.border_margin_px
+        );
         let band_rgb = (config.band_colours == BandColours::Inpainted).then(|| {
             band.source
                 .iter()
@@ -401,7 +422,7 @@ impl Relocator for LdiRelocator {
         format!(
             "layered depth image: cut at {} relative disparity steps (contours >= {} px), \
              background band inpainted by patch synthesis from the background side, \
-             band colours from the {}, {}x{} supersampling, border {:?}",
+             band colours from the {}, {}x{} supersampling, border {}",
             c.edge_threshold,
             c.min_contour_px,
             match c.band_colours {

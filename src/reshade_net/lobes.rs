@@ -416,7 +416,9 @@ impl LobeReshader {
         }
         if !(camera.fx > 0.0 && camera.fy > 0.0 && camera.cx.is_finite() && camera.cy.is_finite()) {
             return Err(NetError::Input(format!(
-                "the camera intrinsics {camera:?} need finite fx, fy > 0 and a finite principal point"
+                "the camera intrinsics (fx {}, fy {}, principal point {}, {}) need finite fx, \
+                 fy > 0 and a finite principal point",
+                camera.fx, camera.fy, camera.cx, camera.cy
             )));
         }
         let ww = ((w as f64 * self.options.scale).round() as usize).max(1);

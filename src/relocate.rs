@@ -181,7 +181,10 @@ impl Relocator for MeshWarp {
         )
     }
 
-    /// The mesh is re-projected per view, so preparing only keeps the depth.
+    /// The mesh is re-projected per view, so preparing only keeps the depth, in the
+    /// warp's own units as the LDI does (divided by the power of two nearest its nearest
+    /// depth, cameras likewise): at depth 1e-30 the parallax and inverse depths
+    /// underflowed in view pixels and every view came out black.
     fn prepare<'a>(
         &'a self,
         colours: &SrgbImage,
@@ -190,24 +193,33 @@ impl Relocator for MeshWarp {
         _reach: f64,
     ) -> Result<Box<dyn PreparedRelocation + 'a>, RelocateError> {
         check_sizes(colours, depth, source)?;
+        let unit = crate::ldi::mesh_scale(depth.data());
+        let scaled = depth.data().iter().map(|&z| (f64::from(z) / unit) as f32);
         Ok(Box::new(PreparedMesh {
             warp: *self,
-            depth: depth.clone(),
+            depth: DepthMap::new(depth.width(), depth.height(), scaled.collect()),
             source: *source,
+            unit,
         }))
     }
 }
 
 struct PreparedMesh {
     warp: MeshWarp,
+    /// Depth divided by `unit`.
     depth: DepthMap,
     source: Intrinsics,
+    unit: f64,
 }
 
 impl PreparedRelocation for PreparedMesh {
     fn render(&self, colours: &SrgbImage, view: &ViewCamera) -> Result<SrgbImage, RelocateError> {
         let (depth, source) = (&self.depth, &self.source);
         check_sizes(colours, depth, source)?;
+        let view = &ViewCamera {
+            centre: view.centre.map(|c| c / self.unit),
+            intrinsics: view.intrinsics,
+        };
         let vertices = project_vertices(depth, source, view);
         let mut frame = Frame::new(
             view.intrinsics.width as usize,

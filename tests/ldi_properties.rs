@@ -364,3 +364,40 @@ fn a_scene_in_other_units_renders_the_same() {
         );
     }
 }
+
+/// The mesh warp, like the LDI, computes in its own units: a random scene at any depth
+/// scale from 2^-100 (about 1e-30) to 2^100, with its camera in the same units, renders
+/// the picture it renders at scale 1, bit for bit, and that picture is not black. (At
+/// depth 1e-30 every view was black: the parallax underflowed in view pixels.)
+#[test]
+fn the_mesh_warp_renders_a_scene_in_any_units_the_same() {
+    let mut rng = Lcg(0x3e54_2026);
+    for case in 0..24 {
+        let scene = random_scene(100 + case);
+        let offset =
+            [random_offset(&mut rng), random_offset(&mut rng), 0.0].map(|c| c.clamp(-0.5, 0.5));
+        let render = |s: f64| {
+            let depth = DepthMap::new(W, H, scene.depth.iter().map(|d| d * s as f32).collect());
+            let view =
+                reshader::views::ViewCamera::off_axis(&camera(), offset.map(|c| c * s), 3.5 * s)
+                    .unwrap();
+            reshader::relocate::MeshWarp::default()
+                .render(&scene.colours, &depth, &camera(), &view)
+                .unwrap_or_else(|e| panic!("case {case}, depth x{s:e}: {e}"))
+        };
+        let reference = render(1.0);
+        let mean = reference.data().iter().sum::<f32>() / reference.data().len() as f32;
+        assert!(mean > 0.01, "case {case}: the view at scale 1 is black");
+        let exponent = [-100, -60, -20, 20, 60, 100][case as usize % 6];
+        let other = render(2f64.powi(exponent));
+        assert!(
+            other.data().iter().all(|v| v.is_finite()),
+            "case {case}, depth x2^{exponent}: not finite"
+        );
+        // Compared whole, not printed: a mismatch names the case, not 9216 values.
+        assert!(
+            other == reference,
+            "case {case}, offset {offset:?}, depth x2^{exponent}: another picture"
+        );
+    }
+}

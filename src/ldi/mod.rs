@@ -370,7 +370,7 @@ impl Ldi {
 /// The power of two nearest the smallest positive depth (1 for a map without one):
 /// dividing by a power of two is exact, so a scene already in ordinary units renders
 /// bit for bit as without it.
-fn mesh_scale(depth: &[f32]) -> f64 {
+pub(crate) fn mesh_scale(depth: &[f32]) -> f64 {
     let nearest = depth
         .iter()
         .copied()

@@ -192,7 +192,8 @@ fn fitted_pixels((pw, ph): (u32, u32), (vw, vh): (u32, u32)) -> u64 {
 /// (the views and the larger of the quilt and the panel, made one after the other).
 /// [`factors::SLACK_PERCENT`] is added. Measured against the peak memory of nine renders
 /// (photos of 0.1 to 12 megapixels, four boards, with and without the networks), it lies
-/// 1.06x to 1.47x above it, and each of them passes with --max-memory at the estimate.
+/// 1.06x to 1.47x above it, and each passes with --max-memory at its estimate unless
+/// the per-input check (a quarter of the ceiling for the photo) refuses it first.
 pub fn estimate(size: &RenderSize) -> MemoryEstimate {
     use factors::*;
     let photo = u64::from(size.photo.0) * u64::from(size.photo.1);

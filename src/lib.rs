@@ -27,6 +27,7 @@ pub mod pfm;
 pub mod photo;
 pub mod pipeline;
 pub mod preflight;
+pub mod preview;
 pub mod progress;
 pub mod quilt_file;
 pub mod record;

@@ -15,6 +15,7 @@ use crate::depth_holes::HolePolicy;
 use crate::depth_net::{DepthEstimator, DepthNetError, StageReport};
 use crate::output::{self, OutputError, Staging};
 use crate::photo::{Photo, PhotoError, SrgbImage};
+use crate::preview::{self, PreviewError};
 use crate::progress::Progress;
 use crate::record::{
     BoardRecord, DepthRecord, FileDepthRecord, FileRecord, Geometry, Inputs, PhotoRecord,
@@ -42,6 +43,8 @@ pub enum PipelineError {
     Output(#[from] OutputError),
     #[error(transparent)]
     Board(#[from] BoardError),
+    #[error(transparent)]
+    Preview(#[from] PreviewError),
     #[error("weaving failed: {0}")]
     Weave(#[from] WeaveError),
     #[error("cannot read {path}: {source}")]
@@ -68,6 +71,10 @@ pub enum Product {
     Sbs,
     /// The photo beside its depth (`rgbd.png`), for RGB-D viewers.
     Rgbd,
+    /// The views swept left to right and back (`preview.gif`).
+    Preview,
+    /// A page that shows the view under the pointer (`preview.html`).
+    Html,
 }
 
 /// Where a scene's depth comes from.
@@ -509,6 +516,36 @@ fn write_products(
     if opts.wants(Product::Sbs) {
         let sbs = side_by_side(&views[left], &views[right]);
         stage_png("sbs.png", &sbs, t)?;
+    }
+    write_previews(opts, views, staging, t)
+}
+
+/// Stages `preview.gif` and `preview.html`, both from the views shrunk once.
+fn write_previews(
+    opts: &RenderOptions,
+    views: &[RgbImage],
+    staging: &mut Staging,
+    t: &mut Timings,
+) -> Result<(), PipelineError> {
+    const GIF: &str = "preview.gif";
+    const HTML: &str = "preview.html";
+    let (gif, html) = (opts.wants(Product::Preview), opts.wants(Product::Html));
+    if !(gif || html) {
+        return Ok(());
+    }
+    let frames = t.time("preview_shrink", || preview::shrink(views));
+    if gif {
+        let bytes = t.time("preview_gif", || {
+            preview::animation::encode(&staging.final_path(GIF), &frames)
+        })?;
+        t.time("write", || staging.write(GIF, &bytes))?;
+    }
+    if html {
+        let title = opts.photo.file_name().unwrap_or_default().to_string_lossy();
+        let page = t.time("preview_html", || {
+            preview::page::render(&staging.final_path(HTML), &title, &frames)
+        })?;
+        t.time("write", || staging.write(HTML, page.as_bytes()))?;
     }
     Ok(())
 }

@@ -48,6 +48,8 @@ fn render_without_depth_runs_the_shipped_network() {
         entries(&out),
         [
             "panel.png",
+            "preview.gif",
+            "preview.html",
             "quilt_qs3x2a1.5.png",
             "rgbd.png",
             "run.json",

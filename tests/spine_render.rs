@@ -107,6 +107,8 @@ fn render_products_are_consistent_with_its_views() {
         entries(&out),
         [
             "panel.png",
+            "preview.gif",
+            "preview.html",
             "quilt_qs3x2a1.5.png",
             "rgbd.png",
             "run.json",
@@ -178,7 +180,7 @@ fn run_json_records_inputs_cameras_and_stages() {
     for stage in ["load", "reshade", "relocate", "weave", "write"] {
         assert!(run["timings_ms"][stage].is_number(), "stage {stage}");
     }
-    assert_eq!(run["outputs"].as_array().unwrap().len(), VIEWS + 5);
+    assert_eq!(run["outputs"].as_array().unwrap().len(), VIEWS + 7);
 }
 
 #[test]

@@ -13,6 +13,7 @@ import os
 import shutil
 import time
 from dataclasses import dataclass
+from functools import partial
 
 import numpy as np
 
@@ -175,7 +176,8 @@ def _write_exr(mi, path: str, image: np.ndarray) -> None:
 
 
 def _write_png(mi, path: str, image: np.ndarray) -> None:
-    mi.Bitmap(np.ascontiguousarray(image, dtype=np.uint8), mi.Bitmap.PixelFormat.Y).write(path)
+    image = np.ascontiguousarray(image[..., None], dtype=np.uint8)
+    mi.Bitmap(image, mi.Bitmap.PixelFormat.Y).write(path)
 
 
 def render_views(
@@ -259,17 +261,49 @@ def brightness_scale(image: np.ndarray) -> float:
     return float(np.clip(TARGET_MEDIAN / max(float(np.median(lum)), 1e-8), 0.01, 100.0))
 
 
-def write_example(mi, out_dir: str, ex_id: str, views: dict, meta: dict) -> str:
-    """Write into `<out>/.tmp-<id>` and rename: a folder named <id> is always complete."""
+def example_meta(views: dict, seed: int, index: int, settings: RenderSettings, **kw) -> dict:
+    """Scales input, reshaded and novel in `views` (in place) to the dataset's brightness
+    and returns the example's meta.json. `kw`: spp, change_seeds, render_seed, input_cam,
+    novel_cam, offset, scene (parameters), camera (its dict) and timings."""
+    scale = brightness_scale(views["input"])
+    for name in ("input", "reshaded", "novel"):
+        views[name] = views[name] * scale
+    return {
+        "id": example_id(seed, index),
+        "seed": seed,
+        "index": index,
+        "width": settings.width,
+        "height": settings.height,
+        "spp": kw["spp"],
+        "change_seeds": kw["change_seeds"],
+        "render_seed": kw["render_seed"],
+        "input_camera": kw["input_cam"].meta(),
+        "novel_camera": kw["novel_cam"].meta(),
+        "novel_offset": [float(v) for v in kw["offset"]],
+        "invalid_fraction": float((views["invalid"] > 0).mean()),
+        "scene": {
+            **kw["scene"],
+            "camera": kw["camera"],
+            "brightness_scale": scale,
+            "target_median": TARGET_MEDIAN,
+        },
+        "render_seconds": kw["timings"],
+    }
+
+
+def write_example(out_dir: str, views: dict, meta: dict, write_exr, write_mask) -> str:
+    """Write into `<out>/.tmp-<id>` and rename: a folder named <id> is always complete.
+    write_exr(path, (H, W, C) float image) and write_mask(path, (H, W) uint8) do the files
+    (Mitsuba's writers, or numpy's where Mitsuba is not loaded)."""
+    ex_id = meta["id"]
     final = os.path.join(out_dir, ex_id)
     tmp = os.path.join(out_dir, f".tmp-{ex_id}")
     shutil.rmtree(tmp, ignore_errors=True)
     os.makedirs(tmp)
     for name in ("input", "reshaded", "novel"):
-        _write_exr(mi, os.path.join(tmp, f"{name}.exr"), views[name])
-    _write_exr(mi, os.path.join(tmp, "depth.exr"), views["depth"][..., None])
-    mask = np.where(views["invalid"] > 0, 0, 255)[..., None]
-    _write_png(mi, os.path.join(tmp, "mask.png"), mask)
+        write_exr(os.path.join(tmp, f"{name}.exr"), views[name])
+    write_exr(os.path.join(tmp, "depth.exr"), views["depth"][..., None])
+    write_mask(os.path.join(tmp, "mask.png"), np.where(views["invalid"] > 0, 0, 255))
     with open(os.path.join(tmp, "meta.json"), "w") as f:
         json.dump(meta, f, indent=1)
     if os.path.exists(final):  # an incomplete folder from an interrupted older layout
@@ -323,31 +357,21 @@ def render_example(mi, source, out_dir: str, seed: int, index: int, settings: Re
         timings,
         settings.change_seeds,
     )
-    scale = brightness_scale(views["input"])
-    for name in ("input", "reshaded", "novel"):
-        views[name] = views[name] * scale
     timings["total"] = time.perf_counter() - start
-    ex_id = example_id(seed, index)
-    meta = {
-        "id": ex_id,
-        "seed": seed,
-        "index": index,
-        "width": settings.width,
-        "height": settings.height,
-        "spp": settings.spp,
-        "change_seeds": settings.change_seeds,
-        "render_seed": ex.render_seed,
-        "input_camera": ex.input_cam.meta(),
-        "novel_camera": ex.novel_cam.meta(),
-        "novel_offset": [float(v) for v in ex.offset],
-        "invalid_fraction": float((views["invalid"] > 0).mean()),
-        "scene": {
-            **ex.params,
-            "camera": ex.cam,
-            "brightness_scale": scale,
-            "target_median": TARGET_MEDIAN,
-        },
-        "render_seconds": timings,
-    }
-    write_example(mi, out_dir, ex_id, views, meta)
+    meta = example_meta(
+        views,
+        seed,
+        index,
+        settings,
+        spp=settings.spp,
+        change_seeds=settings.change_seeds,
+        render_seed=ex.render_seed,
+        input_cam=ex.input_cam,
+        novel_cam=ex.novel_cam,
+        offset=ex.offset,
+        scene=ex.params,
+        camera=ex.cam,
+        timings=timings,
+    )
+    write_example(out_dir, views, meta, partial(_write_exr, mi), partial(_write_png, mi))
     return meta

@@ -22,8 +22,12 @@ pub struct TractEngine {
 /// (SIGSEGV at a `tileloadd` on a worker thread: about one run in six of the int8 depth
 /// network on this project's machines), so they are left out of tract's kernel pool
 /// before any plan picks its kernels. This is a default below the environment: a user's
-/// own `TRACT_CPU_ISA` still wins.
+/// own `TRACT_CPU_ISA` still wins. AMX is x86_64's alone, and tract refuses (panics on)
+/// an x86 token on another architecture, so on ARM boards there is nothing to set.
 fn avoid_amx_kernels() {
+    if !cfg!(target_arch = "x86_64") {
+        return;
+    }
     static ONCE: std::sync::Once = std::sync::Once::new();
     ONCE.call_once(|| {
         if let Err(e) =

@@ -25,11 +25,29 @@ pub fn golden_dir() -> PathBuf {
 /// Runs the binary with reshading off unless `args` pass --model, so the goldens do not
 /// change when a trained model ships in models/reshade.
 pub fn run(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_reshader"))
+    reshader_command()
         .env("RESHADER_MODEL", "none")
         .args(args)
         .output()
         .expect("reshader runs")
+}
+
+/// The binary as a command. A cross-built binary runs under an emulator: cargo runs the
+/// test binaries with the target's runner, but the CLI they spawn needs it too, so
+/// `RESHADER_TEST_RUNNER` (e.g. `qemu-aarch64-static -L /usr/aarch64-linux-gnu`, split on
+/// whitespace) is put in front of it (scripts/cross-aarch64).
+pub fn reshader_command() -> Command {
+    let exe = env!("CARGO_BIN_EXE_reshader");
+    let runner = std::env::var("RESHADER_TEST_RUNNER").unwrap_or_default();
+    let mut runner = runner.split_whitespace();
+    match runner.next() {
+        Some(emulator) => {
+            let mut command = Command::new(emulator);
+            command.args(runner).arg(exe);
+            command
+        }
+        None => Command::new(exe),
+    }
 }
 
 pub fn stderr(out: &Output) -> String {

@@ -228,6 +228,35 @@ pub fn install_panic_hook() {
     }));
 }
 
+/// The exit status of a run that hit a bug (a panic): sysexits.h's EX_SOFTWARE, so that
+/// no command answers with Rust's 101.
+pub const INTERNAL_ERROR_EXIT: u8 = 70;
+
+/// Runs a command's body and gives its exit status: 0, or 1 with `error: …` for its error
+/// or for running out of memory under the ceiling, or [`INTERNAL_ERROR_EXIT`] for any
+/// other panic (printed by the panic hook, then said to be a bug).
+pub fn run_guarded<E: fmt::Display>(body: impl FnOnce() -> Result<(), E>) -> u8 {
+    match std::panic::catch_unwind(std::panic::AssertUnwindSafe(body)) {
+        Ok(Ok(())) => 0,
+        Ok(Err(e)) => {
+            eprintln!("error: {e}");
+            1
+        }
+        // A failed allocation is the ceiling, not a bug: an error like any other.
+        Err(_) if ran_out_of_memory() => {
+            eprintln!("error: {}", OutOfMemory::now(""));
+            1
+        }
+        Err(_) => {
+            eprintln!(
+                "error: internal error (a bug in reshader, not in your input): please report \
+                 it with the command and the message above"
+            );
+            INTERNAL_ERROR_EXIT
+        }
+    }
+}
+
 /// A run that ran out of memory under the ceiling although the estimate made before it
 /// said it would fit.
 #[derive(Clone, Debug, thiserror::Error)]
@@ -269,6 +298,111 @@ impl fmt::Display for Bytes {
             }
         }
         write!(f, "{} bytes", self.0)
+    }
+}
+
+/// The system allocator, remembering the size of the largest allocation it could not make.
+/// Outside tract, Rust answers a failed allocation by aborting the process (SIGABRT, exit
+/// 134) after printing "memory allocation of N bytes failed"; with this allocator in
+/// place, [`install_abort_report`] turns that abort into the ceiling's error and exit 1.
+/// Fallible allocations (`try_reserve`) still see their null pointer.
+pub struct Allocator;
+
+static FAILED_ALLOCATION: AtomicU64 = AtomicU64::new(0);
+
+impl Allocator {
+    fn note(ptr: *mut u8, size: usize) -> *mut u8 {
+        if ptr.is_null() {
+            FAILED_ALLOCATION.fetch_max(size as u64, Ordering::Relaxed);
+        }
+        ptr
+    }
+}
+
+// SAFETY: every call goes to the system allocator unchanged; only null results are noted.
+unsafe impl std::alloc::GlobalAlloc for Allocator {
+    unsafe fn alloc(&self, layout: std::alloc::Layout) -> *mut u8 {
+        Self::note(std::alloc::System.alloc(layout), layout.size())
+    }
+
+    unsafe fn alloc_zeroed(&self, layout: std::alloc::Layout) -> *mut u8 {
+        Self::note(std::alloc::System.alloc_zeroed(layout), layout.size())
+    }
+
+    unsafe fn realloc(&self, ptr: *mut u8, layout: std::alloc::Layout, size: usize) -> *mut u8 {
+        Self::note(std::alloc::System.realloc(ptr, layout, size), size)
+    }
+
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: std::alloc::Layout) {
+        std::alloc::System.dealloc(ptr, layout)
+    }
+}
+
+/// Exit status of a run that ran out of memory: an error like any other (1), not a crash.
+const OUT_OF_MEMORY_EXIT: libc::c_int = 1;
+
+/// Installs a SIGABRT handler that, when [`Allocator`] saw an allocation fail, prints the
+/// ceiling's error with the largest that failed (std's handler may fail smaller ones while
+/// it prints a backtrace) and exits with status 1. Any other abort stays an abort. The handler
+/// only formats into a stack buffer, writes and exits: all async-signal-safe.
+pub fn install_abort_report() {
+    extern "C" fn on_abort(_: libc::c_int) {
+        let size = FAILED_ALLOCATION.load(Ordering::Relaxed);
+        if size == 0 {
+            return;
+        }
+        let mut line = Line::default();
+        line.push(b"error: ran out of memory: an allocation of ");
+        line.number(size.div_ceil(1 << 20));
+        line.push(b" MiB failed under --max-memory ");
+        line.number(max_memory() >> 20);
+        line.push(b" MiB; raise --max-memory, or lower the sizes (board, photo, views)\n");
+        // SAFETY: write(2) and _exit(2) are async-signal-safe; the buffer is live.
+        unsafe {
+            libc::write(2, line.buf.as_ptr().cast(), line.len);
+            libc::_exit(OUT_OF_MEMORY_EXIT);
+        }
+    }
+    // SAFETY: a plain handler that only calls async-signal-safe functions.
+    unsafe {
+        libc::signal(libc::SIGABRT, on_abort as *const () as libc::sighandler_t);
+    }
+}
+
+/// A message built without allocating, for the signal handler above.
+struct Line {
+    buf: [u8; 256],
+    len: usize,
+}
+
+impl Default for Line {
+    fn default() -> Self {
+        Self {
+            buf: [0; 256],
+            len: 0,
+        }
+    }
+}
+
+impl Line {
+    fn push(&mut self, bytes: &[u8]) {
+        let n = bytes.len().min(self.buf.len() - self.len);
+        self.buf[self.len..self.len + n].copy_from_slice(&bytes[..n]);
+        self.len += n;
+    }
+
+    fn number(&mut self, mut n: u64) {
+        let mut digits = [0u8; 20];
+        let mut i = digits.len();
+        loop {
+            i -= 1;
+            digits[i] = b'0' + (n % 10) as u8;
+            n /= 10;
+            if n == 0 {
+                break;
+            }
+        }
+        self.push(&digits[i..]);
     }
 }
 

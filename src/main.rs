@@ -397,6 +397,9 @@ fn parse_pair(s: &str) -> Result<(usize, usize), String> {
     Ok((idx(a)?, idx(b)?))
 }
 
+#[global_allocator]
+static ALLOCATOR: reshader::limits::Allocator = reshader::limits::Allocator;
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let level = match cli.verbose {
@@ -414,20 +417,8 @@ fn main() -> ExitCode {
         log::warn!("cannot set the memory limit of the process: {e}");
     }
     reshader::limits::install_panic_hook();
-    let outcome = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| run(cli.command)));
-    match outcome {
-        Ok(Ok(())) => ExitCode::SUCCESS,
-        Ok(Err(e)) => {
-            eprintln!("error: {e}");
-            ExitCode::FAILURE
-        }
-        // A failed allocation is the ceiling, not a bug: an error like any other.
-        Err(_) if reshader::limits::ran_out_of_memory() => {
-            eprintln!("error: {}", reshader::limits::OutOfMemory::now(""));
-            ExitCode::FAILURE
-        }
-        Err(panic) => std::panic::resume_unwind(panic),
-    }
+    reshader::limits::install_abort_report();
+    ExitCode::from(reshader::limits::run_guarded(|| run(cli.command)))
 }
 
 fn run(command: Command) -> Result<()> {

@@ -45,6 +45,30 @@ fn seed_corpora_pass_their_targets() {
     assert!(count >= 30, "only {count} seeds");
 }
 
+/// The seeds at the limits are valid (the limits are inclusive), so the checks above
+/// run their mapping and buffer assertions on them rather than stopping at a refusal.
+#[test]
+fn seeds_at_the_limits_load() {
+    let seeds = Path::new(env!("CARGO_MANIFEST_DIR")).join("fuzz/seeds");
+    let read = |p: &str| std::fs::read_to_string(seeds.join(p)).unwrap();
+    for name in ["limit-sizes.toml", "limit-lenses.toml"] {
+        let board = interleave::Board::from_toml_str(&read(&format!("board_toml/{name}")), name)
+            .unwrap_or_else(|e| panic!("{name}: {e}"));
+        assert_eq!(board.views(), 256, "{name}");
+    }
+    for name in ["limit-screen.json", "limit-low.json"] {
+        let cal = interleave::Calibration::from_json_str(
+            &read(&format!("calibration_json/{name}")),
+            name,
+        )
+        .unwrap_or_else(|e| panic!("{name}: {e}"));
+        let mut board = interleave::Board::builtin("looking-glass-portrait").unwrap();
+        board
+            .apply_calibration(&cal)
+            .unwrap_or_else(|e| panic!("{name}: {e}"));
+    }
+}
+
 #[test]
 fn minimised_fuzz_corpora_pass_their_targets() {
     let count = replay(&Path::new(env!("CARGO_MANIFEST_DIR")).join("fuzz/corpus-min"));

@@ -10,6 +10,10 @@ use std::process::{Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
 use reshader::capture::file::FrameWriter;
+
+// As in the binary, so that the child below reports a failed allocation's abort.
+#[global_allocator]
+static ALLOCATOR: reshader::limits::Allocator = reshader::limits::Allocator;
 use reshader::capture::PixelFormat;
 
 const TINY_BOARD: &str = r#"
@@ -125,15 +129,16 @@ fn live_with_the_depth_network_refuses_or_runs_under_any_ceiling() {
     }
 }
 
-/// The estimate refuses what it can foresee; what it cannot ends the run through the
-/// panic hook. Run in a child process (this test binary again) because it lowers the
-/// process's memory limit.
+/// The estimate refuses what it can foresee; what it cannot ends the run with status 1,
+/// through the panic hook (tract) or the abort handler (std); a bug ends it with status
+/// 70. Run in a child process (this test binary again) because it lowers the process's
+/// memory limit.
 #[test]
 fn a_failed_allocation_under_the_limit_ends_the_run_even_with_backtraces_on() {
     if std::env::var_os("RESHADER_OOM_CHILD").is_some() {
         return;
     }
-    for case in ["oom", "bug"] {
+    for case in ["oom", "bug", "abort"] {
         let mut cmd = Command::new(std::env::current_exe().unwrap());
         cmd.env("RESHADER_OOM_CHILD", case)
             .env("RUST_BACKTRACE", "1")
@@ -152,9 +157,20 @@ fn a_failed_allocation_under_the_limit_ends_the_run_even_with_backtraces_on() {
                 output.status.success() && stdout.contains("reported as out of memory"),
                 "{stdout}\n{stderr}"
             ),
+            "bug" => assert!(
+                output.status.code() == Some(i32::from(reshader::limits::INTERNAL_ERROR_EXIT))
+                    && stderr.contains("a bug, not the ceiling")
+                    && stderr.contains("error: internal error (a bug in reshader"),
+                "{:?}\n{stdout}\n{stderr}",
+                output.status
+            ),
             _ => assert!(
-                !output.status.success() && stderr.contains("a bug, not the ceiling"),
-                "{stdout}\n{stderr}"
+                output.status.code() == Some(1)
+                    && stderr
+                        .contains("error: ran out of memory: an allocation of 1024 MiB failed")
+                    && stderr.contains("raise --max-memory"),
+                "{:?}\n{stdout}\n{stderr}",
+                output.status
             ),
         }
     }
@@ -177,6 +193,13 @@ fn oom_child() {
         .and_then(|v| v.trim().trim_end_matches("kB").trim().parse().ok())
         .unwrap();
     reshader::limits::apply_process_limit((data_kib + 512) << 10).unwrap();
+    if case == "abort" {
+        // A plain Vec the kernel refuses: std aborts, the handler reports the ceiling.
+        reshader::limits::install_abort_report();
+        let big: Vec<u8> = Vec::with_capacity(1 << 30);
+        std::hint::black_box(&big);
+        unreachable!("a 1 GiB vector under a data limit of VmData + 512 KiB");
+    }
     if case == "oom" {
         let caught = std::panic::catch_unwind(|| {
             // A buffer the kernel refuses, as tract reports it.
@@ -186,6 +209,9 @@ fn oom_child() {
         assert!(caught.is_err() && reshader::limits::ran_out_of_memory());
         println!("reported as out of memory");
     } else {
-        panic!("a bug, not the ceiling");
+        let status = reshader::limits::run_guarded(|| -> Result<(), String> {
+            panic!("a bug, not the ceiling")
+        });
+        std::process::exit(i32::from(status));
     }
 }

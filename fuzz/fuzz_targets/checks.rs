@@ -101,8 +101,10 @@ pub fn calibration_json(data: &[u8]) {
     }
 }
 
-/// Every corner subpixel of a valid board maps to an existing view and source pixel.
+/// Every corner subpixel of a valid board maps to an existing view and source pixel, and
+/// the memory estimate counts every buffer the board implies.
 fn check_mapping(board: &Board) {
+    check_buffers_fit(board);
     let mapping = board.mapping();
     let (w, h) = board.panel_size();
     let (vw, vh) = board.view_size();
@@ -164,4 +166,19 @@ pub fn onnx_model(data: &[u8]) {
         precision,
     };
     let _ = engine.plan(model, &[("image", vec![1, 8, 12, 3])], &["depth"]);
+}
+
+/// What `weave` estimates for a board covers its views and its panel at their exact
+/// sizes, so that a board passing the estimate cannot allocate beyond it, however near
+/// the limits its sizes are (fuzz/seeds/*/limit-*).
+fn check_buffers_fit(board: &Board) {
+    let estimate = reshader::preflight::weave_estimate(board).total();
+    let (w, h) = board.panel_size();
+    let (vw, vh) = board.view_size();
+    let panel = u64::from(w) * u64::from(h) * 3;
+    let views = u64::from(vw) * u64::from(vh) * 3 * board.views() as u64;
+    assert!(
+        estimate >= panel + views,
+        "estimate {estimate} below panel {panel} + views {views} bytes"
+    );
 }

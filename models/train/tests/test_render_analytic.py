@@ -131,3 +131,61 @@ def test_depth_is_the_z_distance_of_the_input_view():
     np.testing.assert_allclose(centre, 2.0 - 0.6, atol=1e-3)  # the box's top face
     np.testing.assert_allclose(depth[0, 0], 2.0, atol=1e-3)  # the floor, at the corner
     assert math.isfinite(float(depth.max()))
+
+
+def _files(folder):
+    return {p.name: p.read_bytes() for p in sorted(folder.iterdir()) if p.name != "meta.json"}
+
+
+def _meta(folder):
+    meta = json.loads((folder / "meta.json").read_text())
+    meta.pop("render_seconds")
+    return meta
+
+
+def test_several_targets_are_written_deterministically_and_resume(tmp_path):
+    common = ["render", "--scenes", "analytic", "--count", "2", "--seed", "5"]
+    common += ["--size", "32x32", "--spp", "1"]
+    one, three = tmp_path / "one", tmp_path / "three"
+    assert main([*common, "--out", str(one)]) == 0
+    assert main([*common, "--out", str(three), "--targets", "3"]) == 0
+    for a, b in zip(list_examples(one), list_examples(three), strict=True):
+        # The first target is the one-target render's, byte for byte.
+        files = _files(b)
+        assert {k: v for k, v in files.items() if k in _files(a)} == _files(a)
+        assert set(files) - set(_files(a)) == {
+            "reshaded-1.exr", "reshaded-2.exr", "mask-1.png", "mask-2.png"
+        }  # fmt: skip
+        meta = _meta(b)
+        assert {k: v for k, v in meta.items() if k != "extra_targets"} == _meta(a)
+        extra = meta["extra_targets"]
+        assert [e["reshaded"] for e in extra] == ["reshaded-1.exr", "reshaded-2.exr"]
+        assert [e["mask"] for e in extra] == ["mask-1.png", "mask-2.png"]
+        offsets = [meta["novel_offset"]] + [e["offset"] for e in extra]
+        assert all(0.1 <= np.linalg.norm(o) <= 0.3 for o in offsets)
+        assert len({tuple(o) for o in offsets}) == 3
+        ex = load_example(b)
+        assert ex.target_count == 3
+        for k, e in enumerate(extra, 1):
+            assert np.allclose(ex.target(k).offset, e["offset"])
+            assert ex.target(k).reshaded.shape == (32, 32, 3)
+            assert not np.array_equal(ex.target(k).reshaded, ex.reshaded)
+    # A fresh render gives the same files; so does one resumed after an interruption.
+    again = tmp_path / "again"
+    assert main([*common, "--out", str(again), "--targets", "3"]) == 0
+    first, second = list_examples(three)
+    import shutil
+
+    shutil.rmtree(second)
+    (three / f".tmp-{second.name}").mkdir()
+    assert main([*common, "--out", str(three), "--targets", "3"]) == 0
+    for a, b in zip(list_examples(three), list_examples(again), strict=True):
+        assert _files(a) == _files(b) and _meta(a) == _meta(b)
+
+
+def test_several_targets_need_the_analytic_family(capsys):
+    args = ["render", "--out", "/nonexistent", "--count", "1", "--targets", "2"]
+    assert main([*args, "--scenes", "procedural"]) == 2
+    assert "--targets applies to analytic scenes only" in capsys.readouterr().err
+    assert main([*args, "--scenes", "analytic", "--targets", "0"]) == 2
+    assert "--targets 0" in capsys.readouterr().err

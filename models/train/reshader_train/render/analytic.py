@@ -415,9 +415,24 @@ def _resolve(values: np.ndarray, n_sub: int, cam: Camera) -> np.ndarray:
     return values.reshape(n_sub, cam.height, cam.width, -1).mean(0)
 
 
-def render_pair(scene: dict, input_cam: Camera, novel_cam: Camera, spp: int) -> dict:
+def _reshaded_from(scene: dict, surf: Surface, points, d, sky, eye: np.ndarray):
+    """The input's samples shaded towards the camera centre `eye`, and the samples that
+    camera cannot see (1: invalid)."""
+    reshaded = shade(scene, surf, eye)
+    reshaded[sky] = background(scene, d[sky])
+    # The novel camera must see the sample: nothing in between, and its front side.
+    to_eye = eye - points
+    dist = np.linalg.norm(to_eye, axis=1)
+    dirs = to_eye / np.maximum(dist, 1e-9)[:, None]
+    facing = np.einsum("ij,ij->i", surf.normal, dirs) > 0
+    seen = visible(scene, points, surf.normal, dirs, dist) > 0
+    return reshaded, (~sky & ~(facing & seen)).astype(np.float32)
+
+
+def render_pair(scene: dict, input_cam: Camera, novel_cam: Camera, spp: int, extra_cams=()) -> dict:
     """input, reshaded (the input's samples seen from the novel camera), novel, depth and
-    the invalid fraction per pixel."""
+    the invalid fraction per pixel; with `extra_cams`, also "extra": per further novel
+    camera a dict of its reshaded image and invalid fraction (no novel image)."""
     offsets = subsample_offsets(spp)
     n_sub = len(offsets)
     d, _ = camera_rays(input_cam, offsets)
@@ -428,15 +443,7 @@ def render_pair(scene: dict, input_cam: Camera, novel_cam: Camera, spp: int) -> 
     sky = hits.id == -1
     image = shade(scene, surf, input_cam.centre)
     image[sky] = background(scene, d[sky])
-    reshaded = shade(scene, surf, novel_cam.centre)
-    reshaded[sky] = background(scene, d[sky])
-    # The novel camera must see the sample: nothing in between, and its front side.
-    to_eye = novel_cam.centre - points
-    dist = np.linalg.norm(to_eye, axis=1)
-    dirs = to_eye / np.maximum(dist, 1e-9)[:, None]
-    facing = np.einsum("ij,ij->i", surf.normal, dirs) > 0
-    seen = visible(scene, points, surf.normal, dirs, dist) > 0
-    invalid = (~sky & ~(facing & seen)).astype(np.float32)
+    reshaded, invalid = _reshaded_from(scene, surf, points, d, sky, novel_cam.centre)
     dn, _ = camera_rays(novel_cam, offsets)
     on = np.broadcast_to(novel_cam.centre, dn.shape)
     nh = intersect(scene, on, dn)
@@ -445,13 +452,38 @@ def render_pair(scene: dict, input_cam: Camera, novel_cam: Camera, spp: int) -> 
     novel[nh.id == -1] = background(scene, dn[nh.id == -1])
     dc, cos = camera_rays(input_cam, np.zeros((1, 2)))
     depth = intersect(scene, np.broadcast_to(input_cam.centre, dc.shape), dc).t * cos
-    return {
+    out = {
         "input": _resolve(image, n_sub, input_cam).astype(np.float32),
         "reshaded": _resolve(reshaded, n_sub, input_cam).astype(np.float32),
         "novel": _resolve(novel, n_sub, novel_cam).astype(np.float32),
         "invalid": _resolve(invalid, n_sub, input_cam)[..., 0],
         "depth": depth.reshape(input_cam.height, input_cam.width).astype(np.float32),
     }
+    if extra_cams:
+        out["extra"] = []
+        for cam in extra_cams:
+            resh, inval = _reshaded_from(scene, surf, points, d, sky, cam.centre)
+            out["extra"].append(
+                {
+                    "reshaded": _resolve(resh, n_sub, input_cam).astype(np.float32),
+                    "invalid": _resolve(inval, n_sub, input_cam)[..., 0],
+                }
+            )
+    return out
+
+
+# Tries per extra target at a free camera position around the example's fixed scene.
+EXTRA_TARGET_TRIES = 200
+
+
+def _free_offset(rng, scene: dict, input_cam: Camera, radii, tries: int):
+    """A shell offset whose camera stands in free space, or None after `tries` draws."""
+    for _ in range(tries):
+        offset = sample_shell(rng, *radii)
+        novel = input_cam.translated(offset)
+        if camera_is_free(scene, novel.centre):
+            return novel, offset
+    return None
 
 
 def make_example(seed: int, index: int, width: int, height: int, radii=(0.1, 0.3)):
@@ -467,12 +499,27 @@ def make_example(seed: int, index: int, width: int, height: int, radii=(0.1, 0.3
             continue
         m = look_at(cam["position"], cam["target"], (0.0, 1.0, 0.0), cam["roll_deg"])
         input_cam = Camera(m, width, height, cam["fov_x_deg"])
-        for _ in range(50):
-            offset = sample_shell(rng, *radii)
-            novel = input_cam.translated(offset)
-            if camera_is_free(scene, novel.centre):
-                return scene, cam, input_cam, novel, offset
+        found = _free_offset(rng, scene, input_cam, radii, 50)
+        if found is not None:
+            return scene, cam, input_cam, *found
     raise RuntimeError(f"example {index}: no usable analytic scene in 20 tries")
+
+
+def extra_targets(seed: int, index: int, scene: dict, input_cam: Camera, count: int, radii):
+    """`count` further (novel camera, offset) pairs of example (seed, index), drawn as the
+    first one is (the same shell, the same free-space check) from the example's own stream
+    2: the first target stays what a one-target render writes, and target k is the same
+    whatever the number of targets asked for."""
+    rng = example_rng(seed, index, 2)
+    out = []
+    for k in range(count):
+        found = _free_offset(rng, scene, input_cam, radii, EXTRA_TARGET_TRIES)
+        if found is None:
+            raise RuntimeError(
+                f"example {index}: no free camera for target {k + 1} in {EXTRA_TARGET_TRIES} tries"
+            )
+        out.append(found)
+    return out
 
 
 def _write_exr(path: str, image: np.ndarray) -> None:
@@ -489,12 +536,15 @@ def _write_mask(path: str, mask: np.ndarray) -> None:
 
 
 def render_example(out_dir: str, seed: int, index: int, settings) -> dict:
-    """Render and write example (seed, index); the folder appears complete or not at all."""
+    """Render and write example (seed, index); the folder appears complete or not at all.
+    `settings.targets` > 1 adds that many minus one further reshaded targets."""
     start = time.perf_counter()
+    radii = (settings.radius_min, settings.radius_max)
     scene, cam, input_cam, novel_cam, offset = make_example(
-        seed, index, settings.width, settings.height, (settings.radius_min, settings.radius_max)
+        seed, index, settings.width, settings.height, radii
     )
-    views = render_pair(scene, input_cam, novel_cam, settings.spp)
+    extra = extra_targets(seed, index, scene, input_cam, settings.targets - 1, radii)
+    views = render_pair(scene, input_cam, novel_cam, settings.spp, [c for c, _ in extra])
     meta = example_meta(
         views,
         seed,
@@ -509,6 +559,7 @@ def render_example(out_dir: str, seed: int, index: int, settings) -> dict:
         scene=scene,
         camera=cam,
         timings={"total": time.perf_counter() - start},
+        extra=extra,
     )
     write_example(out_dir, views, meta, _write_exr, _write_mask)
     return meta

@@ -68,6 +68,15 @@ def add_arguments(parser) -> None:
         "reshaded render of the input's seed); costs 2 more renders per extra seed",
     )
     parser.add_argument(
+        "--targets",
+        type=int,
+        default=1,
+        help="analytic scenes: reshaded targets per example, each from its own novel camera "
+        "(default 1). The first is reshaded.exr as always; the others are reshaded-K.exr and "
+        "mask-K.png, listed in meta.json's extra_targets, so that one network pass in "
+        "training is supervised at several cameras (train --targets-per-example)",
+    )
+    parser.add_argument(
         "--layouts",
         type=int,
         default=0,
@@ -119,7 +128,10 @@ def parse_settings(args) -> RenderSettings:
     change_seeds = getattr(args, "change_seeds", 1)
     if change_seeds < 1:
         raise ValueError(f"--change-seeds {change_seeds}: need at least 1")
-    return RenderSettings(width, height, args.spp, r_min, r_max, change_seeds)
+    targets = getattr(args, "targets", 1)
+    if targets < 1:
+        raise ValueError(f"--targets {targets}: need at least 1")
+    return RenderSettings(width, height, args.spp, r_min, r_max, change_seeds, targets)
 
 
 def summarize(seconds: list[float], skipped: int, failed: list) -> str:
@@ -184,6 +196,8 @@ def _renderer(args):
         if args.change_seeds != 1:
             raise ValueError("analytic scenes have no sampling noise: --change-seeds must be 1")
         return AnalyticSource()
+    if getattr(args, "targets", 1) != 1:
+        raise ValueError("--targets applies to analytic scenes only (Mitsuba renders one)")
     return MitsubaRenderer(args)
 
 
@@ -207,7 +221,8 @@ def run(args) -> int:
         f"render: {source.name} -> {args.out}, seed {args.seed}, shard {shard}/{shards}: "
         f"{len(todo)} to render, {skipped} already complete; "
         f"{settings.width}x{settings.height} at {settings.spp} spp"
-        + (f", change over {settings.change_seeds} seeds" if settings.change_seeds > 1 else ""),
+        + (f", change over {settings.change_seeds} seeds" if settings.change_seeds > 1 else "")
+        + (f", {settings.targets} targets per example" if settings.targets > 1 else ""),
         flush=True,
     )
     seconds, failed = [], []

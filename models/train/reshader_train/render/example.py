@@ -5,6 +5,13 @@ Layout of `<out>/<id>/` (the training toolchain reads exactly this):
   depth.exr                          1 channel float32 z-depth of the input view (inf: sky)
   mask.png                           8-bit L, 255 valid / 0 invalid
   meta.json                          cameras, novel offset, every scene parameter, timings
+With several targets per example (`render --targets T`, analytic scenes only), the files
+above hold the first target and targets k = 1 .. T-1 add
+  reshaded-<k>.exr                   the input's samples seen from novel camera k
+  mask-<k>.png                       what novel camera k sees of them
+(no novel image), listed in order in meta.json's "extra_targets": [{"offset": [tx, ty, tz],
+"camera": {...}, "reshaded": "reshaded-<k>.exr", "mask": "mask-<k>.png"}, ...]. A one-target
+example has no such files and no "extra_targets".
 """
 
 import json
@@ -40,6 +47,9 @@ class RenderSettings:
     # Sample seeds whose (reshaded - input) differences are averaged into the ground truth;
     # 1 writes the reshaded render of the input's own seed.
     change_seeds: int = 1
+    # Reshaded targets per example (novel cameras): the first is written as reshaded.exr,
+    # the others as reshaded-<k>.exr (analytic scenes only).
+    targets: int = 1
 
 
 def example_id(seed: int, index: int) -> str:
@@ -264,11 +274,15 @@ def brightness_scale(image: np.ndarray) -> float:
 def example_meta(views: dict, seed: int, index: int, settings: RenderSettings, **kw) -> dict:
     """Scales input, reshaded and novel in `views` (in place) to the dataset's brightness
     and returns the example's meta.json. `kw`: spp, change_seeds, render_seed, input_cam,
-    novel_cam, offset, scene (parameters), camera (its dict) and timings."""
+    novel_cam, offset, scene (parameters), camera (its dict) and timings; optionally extra,
+    the (novel camera, offset) pairs of the targets after the first, whose images are
+    views["extra"][k - 1]["reshaded"]."""
     scale = brightness_scale(views["input"])
     for name in ("input", "reshaded", "novel"):
         views[name] = views[name] * scale
-    return {
+    for target in views.get("extra", ()):
+        target["reshaded"] = target["reshaded"] * scale
+    meta = {
         "id": example_id(seed, index),
         "seed": seed,
         "index": index,
@@ -289,6 +303,20 @@ def example_meta(views: dict, seed: int, index: int, settings: RenderSettings, *
         },
         "render_seconds": kw["timings"],
     }
+    if kw.get("extra"):
+        meta["extra_targets"] = [
+            {
+                "offset": [float(v) for v in offset],
+                "camera": cam.meta(),
+                "reshaded": f"reshaded-{k}.exr",
+                "mask": f"mask-{k}.png",
+                "invalid_fraction": float((target["invalid"] > 0).mean()),
+            }
+            for k, ((cam, offset), target) in enumerate(
+                zip(kw["extra"], views["extra"], strict=True), 1
+            )
+        ]
+    return meta
 
 
 def write_example(out_dir: str, views: dict, meta: dict, write_exr, write_mask) -> str:
@@ -304,6 +332,9 @@ def write_example(out_dir: str, views: dict, meta: dict, write_exr, write_mask) 
         write_exr(os.path.join(tmp, f"{name}.exr"), views[name])
     write_exr(os.path.join(tmp, "depth.exr"), views["depth"][..., None])
     write_mask(os.path.join(tmp, "mask.png"), np.where(views["invalid"] > 0, 0, 255))
+    for entry, target in zip(meta.get("extra_targets", ()), views.get("extra", ()), strict=True):
+        write_exr(os.path.join(tmp, entry["reshaded"]), target["reshaded"])
+        write_mask(os.path.join(tmp, entry["mask"]), np.where(target["invalid"] > 0, 0, 255))
     with open(os.path.join(tmp, "meta.json"), "w") as f:
         json.dump(meta, f, indent=1)
     if os.path.exists(final):  # an incomplete folder from an interrupted older layout

@@ -5,6 +5,12 @@ Layout (written by `reshader-train render`): `<root>/<id>/` with `input.exr`, `r
 `mask.png` (8-bit, 255 = valid) and `meta.json` with "novel_offset" [tx, ty, tz] (OpenCV
 frame of the input camera, scene units) and "input_camera" (fx, fy, cx, cy in pixels). Only
 folders with a meta.json are complete; `.tmp-*` folders are renders in progress.
+
+An example may carry further reshaded targets (`render --scenes analytic --targets T`):
+`reshaded-<k>.exr` and `mask-<k>.png` for k = 1 .. T-1, listed in meta.json's
+"extra_targets" as {"offset": [tx, ty, tz], "camera": {...}, "reshaded": "reshaded-<k>.exr",
+"mask": "mask-<k>.png"}. The files above are always the first target, so a reader that
+knows only them sees a one-target example.
 """
 
 from __future__ import annotations
@@ -94,8 +100,18 @@ def scene_name(meta: dict) -> str:
 
 
 @dataclass
+class Target:
+    """A further reshaded target of an example: its image, mask and camera offset."""
+
+    reshaded: np.ndarray  # (H, W, 3) HDR
+    mask: np.ndarray  # (H, W) bool
+    offset: np.ndarray  # (3,)
+
+
+@dataclass
 class Example:
-    """One decoded example; HDR colours are float16 to halve the cache."""
+    """One decoded example; HDR colours are float16 to halve the cache. `reshaded`, `mask`
+    and `offset` are the first target; `extra` the others (meta.json's extra_targets)."""
 
     name: str
     input: np.ndarray  # (H, W, 3) HDR
@@ -105,6 +121,17 @@ class Example:
     offset: np.ndarray  # (3,) novel camera centre in the input camera frame
     scene: str
     intrinsics: tuple[float, float, float, float]  # fx, fy, cx, cy (pixel centres at integers)
+    extra: tuple[Target, ...] = ()
+
+    @property
+    def target_count(self) -> int:
+        return 1 + len(self.extra)
+
+    def target(self, k: int) -> Target:
+        """Target k (0: the first, reshaded.exr)."""
+        if k == 0:
+            return Target(self.reshaded, self.mask, self.offset)
+        return self.extra[k - 1]
 
 
 def pixel_rays(
@@ -127,6 +154,39 @@ HALF_MAX = 60000.0
 
 def to_half(image: np.ndarray) -> np.ndarray:
     return np.clip(np.nan_to_num(image, posinf=HALF_MAX), 0.0, HALF_MAX).astype(np.float16)
+
+
+def _offset(value, where: str) -> np.ndarray:
+    try:
+        offset = np.asarray(value, dtype=np.float32)
+    except (ValueError, TypeError) as err:
+        raise DatasetError(f"{where} must be 3 finite numbers ({err})") from err
+    if offset.shape != (3,) or not np.all(np.isfinite(offset)):
+        raise DatasetError(f"{where} must be 3 finite numbers")
+    return offset
+
+
+def _load_extra(folder: Path, meta: dict, shape: tuple[int, int]) -> tuple[Target, ...]:
+    entries = meta.get("extra_targets", [])
+    if not isinstance(entries, list):
+        raise DatasetError(f"{folder / 'meta.json'}: extra_targets must be a list")
+    out = []
+    for k, entry in enumerate(entries, 1):
+        where = f"{folder / 'meta.json'}: extra_targets[{k - 1}]"
+        try:
+            offset = _offset(entry["offset"], f"{where}.offset")
+            image_name, mask_name = str(entry["reshaded"]), str(entry["mask"])
+        except (KeyError, TypeError) as err:
+            raise DatasetError(f"{where}: needs offset, reshaded and mask ({err})") from err
+        image = read_exr(folder / image_name, 3)
+        mask = read_mask(folder / mask_name)
+        for name, arr in ((image_name, image), (mask_name, mask)):
+            if arr.shape[:2] != shape:
+                raise DatasetError(
+                    f"{folder / name}: size {arr.shape[:2]} differs from input.exr {shape}"
+                )
+        out.append(Target(to_half(image), mask, offset))
+    return tuple(out)
 
 
 def load_example(folder: Path) -> Example:
@@ -156,6 +216,7 @@ def load_example(folder: Path) -> Example:
             raise DatasetError(
                 f"{folder / name}: size {arr.shape[:2]} differs from input.exr {shape}"
             )
+    extra = _load_extra(folder, meta, shape)
     scene = scene_name(meta)
     return Example(
         name=folder.name,
@@ -166,6 +227,7 @@ def load_example(folder: Path) -> Example:
         offset=offset,
         scene=scene,
         intrinsics=intrinsics,
+        extra=extra,
     )
 
 
@@ -195,19 +257,42 @@ def _mirror_y_and_transpose(
 ) -> tuple[np.ndarray, ...]:
     """With the x mirror, completes the square's eight symmetries. The camera frame is
     OpenCV's (x right, y down), so mirroring rows negates ty and swapping rows with
-    columns swaps tx and ty. Non-square planes are never transposed (a batch of them
-    would no longer stack)."""
+    columns swaps tx and ty (of every row of `camera`, one per target). Non-square planes
+    are never transposed (a batch of them would no longer stack)."""
     *planes, rays = planes
     if rng.random() < 0.5:
         planes = [a[::-1] for a in planes]
         rays = rays[::-1] * np.array([1.0, -1.0, 1.0], dtype=np.float32)
-        camera[1] = -camera[1]
+        camera[..., 1] = -camera[..., 1]
     h, w = planes[0].shape[:2]
     if h == w and rng.random() < 0.5:
         planes = [a.swapaxes(0, 1) for a in planes]
         rays = rays.swapaxes(0, 1)[..., [1, 0, 2]]
-        camera[[0, 1]] = camera[[1, 0]]
+        camera[..., [0, 1]] = camera[..., [1, 0]]
     return (*planes, rays, camera)
+
+
+def pick_targets(
+    count: int, n: int | None, rng: np.random.Generator | None
+) -> tuple[list[int], np.ndarray | None]:
+    """Which of an example's `count` targets a sample uses, and their weights.
+
+    n None: the first target alone (no weights), as before examples had several. Else n
+    entries: with more than n targets, n distinct ones drawn at random (the first n without
+    an rng); with n or fewer, all of them, then the first repeated with weight 0 up to n
+    (padding, so that examples with different target counts stack into one batch). A
+    draw is made only when there is a choice, so one-target data consumes the same random
+    numbers as before."""
+    if n is None:
+        return [0], None
+    if n < 1:
+        raise ValueError(f"targets per example {n}: need at least 1")
+    if count > n:
+        picks = sorted(rng.choice(count, n, replace=False)) if rng is not None else range(n)
+        return [int(k) for k in picks], np.ones(n, dtype=np.float32)
+    weights = np.zeros(n, dtype=np.float32)
+    weights[:count] = 1.0
+    return list(range(count)) + [0] * (n - count), weights
 
 
 def make_sample(
@@ -215,8 +300,18 @@ def make_sample(
     crop: int | None,
     rng: np.random.Generator | None,
     aug: Augment | None,
+    targets: int | None = None,
 ) -> dict[str, torch.Tensor]:
-    """Crop + tone map + disparity scale. Without `aug`: fixed evaluation tone mapping, f = 1."""
+    """Crop + tone map + disparity scale. Without `aug`: fixed evaluation tone mapping, f = 1.
+
+    Without `targets` the sample has the first target as "target" (3,H,W), "mask" (1,H,W)
+    and "camera" (3,). With `targets` = N it has N of the example's targets (see
+    `pick_targets`) as "targets" (N,3,H,W), "masks" (N,1,H,W), "cameras" (N,3) and
+    "weights" (N,) (1 for a target, 0 for padding) instead. Every augmentation (crop,
+    flips, transpose, tone mapping, disparity scale) is the same for all of them; "still"
+    is drawn per target."""
+    picks, weights = pick_targets(ex.target_count, targets, rng)
+    chosen = [ex.target(k) for k in picks]
     h, w = ex.mask.shape
     y0 = x0 = 0
     ch, cw = h, w
@@ -231,11 +326,12 @@ def make_sample(
             y0, x0 = (h - crop) // 2, (w - crop) // 2
     win = (slice(y0, y0 + ch), slice(x0, x0 + cw))
     hdr_in = ex.input[win].astype(np.float32)
-    hdr_gt = ex.reshaded[win].astype(np.float32)
+    hdr_gts = [t.reshaded[win].astype(np.float32) for t in chosen]
     disp = ex.disparity[win]
-    mask = ex.mask[win]
+    masks = [t.mask[win] for t in chosen]
     rays = pixel_rays(ex.intrinsics, y0, x0, ch, cw)
-    camera = ex.offset.copy()
+    camera = np.stack([t.offset for t in chosen]).astype(np.float32)  # (N, 3), a copy
+    n = len(chosen)
     if aug is not None and rng is not None:
         exposure = _log_uniform(rng, *aug.exposure)
         gamma = float(rng.uniform(*aug.gamma))
@@ -246,15 +342,22 @@ def make_sample(
         camera = camera / f
         if aug.flip and rng.random() < 0.5:
             # A mirrored scene seen from the mirrored camera: x flips, so does tx.
-            hdr_in, hdr_gt, disp, mask = (a[:, ::-1] for a in (hdr_in, hdr_gt, disp, mask))
+            hdr_in, disp = hdr_in[:, ::-1], disp[:, ::-1]
+            hdr_gts = [a[:, ::-1] for a in hdr_gts]
+            masks = [a[:, ::-1] for a in masks]
             rays = rays[:, ::-1] * np.array([-1.0, 1.0, 1.0], dtype=np.float32)
-            camera[0] = -camera[0]
+            camera[:, 0] = -camera[:, 0]
         if aug.dihedral:
-            hdr_in, hdr_gt, disp, mask, rays, camera = _mirror_y_and_transpose(
-                rng, (hdr_in, hdr_gt, disp, mask, rays), camera
+            hdr_in, disp, *planes, rays, camera = _mirror_y_and_transpose(
+                rng, (hdr_in, disp, *hdr_gts, *masks, rays), camera
             )
-        if rng.random() < aug.still:
-            hdr_gt, mask, camera = hdr_in, np.ones_like(mask), np.zeros_like(camera)
+            hdr_gts, masks = planes[:n], planes[n:]
+        for k in range(n):
+            if weights is not None and weights[k] == 0:
+                continue  # padding: never seen by the loss
+            if rng.random() < aug.still:
+                hdr_gts[k], masks[k] = hdr_in, np.ones_like(masks[k])
+                camera[k] = 0.0
     else:
         exposure, gamma = EVAL_EXPOSURE, EVAL_GAMMA
 
@@ -262,20 +365,28 @@ def make_sample(
         a = np.ascontiguousarray(a, dtype=np.float32)
         return torch.from_numpy(a.transpose(2, 0, 1) if a.ndim == 3 else a[None])
 
-    return {
+    sample = {
         "image": chw(tonemap(hdr_in, exposure, gamma)),
-        "target": chw(tonemap(hdr_gt, exposure, gamma)),
         "disparity": chw(disp),
-        "mask": chw(mask.astype(np.float32)),
-        "camera": torch.from_numpy(camera.astype(np.float32)),
         "rays": chw(rays),
     }
+    if weights is None:
+        sample["target"] = chw(tonemap(hdr_gts[0], exposure, gamma))
+        sample["mask"] = chw(masks[0].astype(np.float32))
+        sample["camera"] = torch.from_numpy(camera[0].astype(np.float32))
+        return sample
+    sample["targets"] = torch.stack([chw(tonemap(a, exposure, gamma)) for a in hdr_gts])
+    sample["masks"] = torch.stack([chw(m.astype(np.float32)) for m in masks])
+    sample["cameras"] = torch.from_numpy(np.ascontiguousarray(camera, dtype=np.float32))
+    sample["weights"] = torch.from_numpy(weights)
+    return sample
 
 
 class ReshadeDataset(Dataset):
     """Training samples from a dataset folder (or a list of example folders); decoded
     examples are cached per process, by folder. `reuse` hands over another dataset's cache,
-    so that a re-listed dataset (train --rescan) decodes only the new examples."""
+    so that a re-listed dataset (train --rescan) decodes only the new examples. `targets`:
+    samples carry that many targets each (see `make_sample`); None, the first alone."""
 
     def __init__(
         self,
@@ -285,12 +396,14 @@ class ReshadeDataset(Dataset):
         cache: bool = True,
         limit: int | None = None,
         reuse: ReshadeDataset | None = None,
+        targets: int | None = None,
     ) -> None:
         folders = list(root) if isinstance(root, list) else list_examples(Path(root))
         self.folders = folders[:limit]
         self.crop = crop
         self.augment = augment
         self.cache = cache
+        self.targets = targets
         self._examples: dict[Path, Example] = reuse._examples if reuse is not None else {}
         self._rng: np.random.Generator | None = None
         self._rng_pid = -1
@@ -316,4 +429,4 @@ class ReshadeDataset(Dataset):
 
     def __getitem__(self, idx: int) -> dict[str, torch.Tensor]:
         rng = self._generator() if self.augment is not None else None
-        return make_sample(self.example(idx), self.crop, rng, self.augment)
+        return make_sample(self.example(idx), self.crop, rng, self.augment, self.targets)

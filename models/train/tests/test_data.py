@@ -10,10 +10,12 @@ from reshader_train.data import (
     DatasetError,
     Example,
     ReshadeDataset,
+    Target,
     disparity_from_depth,
     list_examples,
     load_example,
     make_sample,
+    pick_targets,
     pixel_rays,
 )
 from reshader_train.synthetic import write_dataset, write_exr
@@ -216,3 +218,117 @@ def test_rays_follow_the_crop_window():
     expected = pixel_rays(ex.intrinsics, y0, x0, 8, 8)
     assert torch.allclose(s["rays"], torch.from_numpy(expected.transpose(2, 0, 1).copy()))
     assert float(s["rays"][0, 0, 0]) == pytest.approx((x0 - 7.5) / 20)
+
+
+def multi_example(count=3, h=16, w=16):
+    """fake_example with `count` targets, each its own image, mask and offset."""
+    rng = np.random.default_rng(1)
+    ex = fake_example(h, w)
+    extra = []
+    for k in range(1, count):
+        mask = np.ones((h, w), bool)
+        mask[k, : 2 * k] = False
+        offset = np.array([0.1 * k, -0.2 + 0.05 * k, 0.03 * k], np.float32)
+        extra.append(Target(rng.uniform(0, 0.3, (h, w, 3)).astype(np.float16), mask, offset))
+    ex.reshaded = rng.uniform(0, 0.3, (h, w, 3)).astype(np.float16)
+    ex.extra = tuple(extra)
+    return ex
+
+
+def single(ex, k):
+    """Target k of `ex` as a one-target example."""
+    t = ex.target(k)
+    return Example(ex.name, ex.input, t.reshaded, ex.disparity, t.mask, t.offset, ex.scene,
+                   ex.intrinsics)  # fmt: skip
+
+
+@pytest.mark.parametrize("dihedral", [False, True])
+def test_every_augmentation_treats_all_targets_as_it_treats_one(dihedral):
+    """Target k of a multi-target sample is exactly the sample of the one-target example k
+    drawn with the same random numbers: the same crop, tone mapping, disparity scale,
+    flips and transpose, with its camera offset moved to match."""
+    ex = multi_example()
+    aug = Augment(still=0.0, dihedral=dihedral)
+    flips = set()
+    for seed in range(16):
+        s = make_sample(ex, 12, np.random.default_rng(seed), aug, targets=3)
+        assert s["targets"].shape == (3, 3, 12, 12) and s["masks"].shape == (3, 1, 12, 12)
+        assert s["cameras"].shape == (3, 3) and torch.equal(s["weights"], torch.ones(3))
+        for k in range(3):
+            one = make_sample(single(ex, k), 12, np.random.default_rng(seed), aug)
+            for key in ("image", "disparity", "rays"):
+                assert torch.equal(s[key], one[key])
+            assert torch.equal(s["targets"][k], one["target"])
+            assert torch.equal(s["masks"][k], one["mask"])
+            assert torch.equal(s["cameras"][k], one["camera"])
+        d = s["disparity"][0]
+        flips.add((bool(d[0, 1] > d[0, 0]), bool(d[1, 0] > d[0, 0])))  # which way it grows
+    assert len(flips) == (4 if dihedral else 2)
+
+
+def test_a_flipped_sample_flips_every_target_and_negates_every_tx():
+    ex = multi_example()
+    aug = Augment(still=0.0, disparity_scale=(1.0, 1.0), exposure=(4.0, 4.0), gamma=(2.2, 2.2))
+    plain = make_sample(ex, None, None, None, targets=3)
+    offsets = np.stack([ex.target(k).offset for k in range(3)])
+    seen = set()
+    for seed in range(10):
+        s = make_sample(ex, None, np.random.default_rng(seed), aug, targets=3)
+        d = s["disparity"][0]
+        flipped = bool(d[0, 1] < d[0, 0])  # the disparity ramp runs the other way
+        seen.add(flipped)
+        for k in range(3):
+            image = tonemap(ex.target(k).reshaded.astype(np.float32), 4.0, 2.2)
+            image = image[:, ::-1] if flipped else image
+            assert np.allclose(s["targets"][k].numpy(), image.transpose(2, 0, 1), atol=1e-6)
+            mask = ex.target(k).mask[:, ::-1] if flipped else ex.target(k).mask
+            assert np.array_equal(s["masks"][k, 0].numpy() > 0, mask)
+        sign = np.array([-1.0 if flipped else 1.0, 1.0, 1.0], np.float32)
+        assert np.allclose(s["cameras"].numpy(), offsets * sign)
+    assert seen == {False, True}
+    assert torch.allclose(plain["cameras"], torch.from_numpy(offsets))
+
+
+def test_targets_are_drawn_without_replacement_or_padded():
+    rng = np.random.default_rng(0)
+    picks, weights = pick_targets(1, None, rng)
+    assert picks == [0] and weights is None
+    for _ in range(10):
+        picks, weights = pick_targets(5, 3, rng)
+        assert len(set(picks)) == 3 and weights.tolist() == [1, 1, 1]
+    assert pick_targets(5, 3, None)[0] == [0, 1, 2]
+    picks, weights = pick_targets(2, 4, rng)
+    assert picks == [0, 1, 0, 0] and weights.tolist() == [1, 1, 0, 0]
+    # A one-target example draws no random number: old data samples as it always did.
+    state = rng.bit_generator.state
+    pick_targets(1, 1, rng)
+    assert rng.bit_generator.state == state
+    with pytest.raises(ValueError, match="at least 1"):
+        pick_targets(2, 0, rng)
+
+
+def test_one_target_sample_with_targets_matches_the_plain_sample():
+    ex = fake_example()
+    aug = Augment(dihedral=True)
+    for seed in range(6):
+        plain = make_sample(ex, 8, np.random.default_rng(seed), aug)
+        one = make_sample(ex, 8, np.random.default_rng(seed), aug, targets=1)
+        assert torch.equal(one["targets"][0], plain["target"])
+        assert torch.equal(one["cameras"][0], plain["camera"])
+        assert torch.equal(one["masks"][0], plain["mask"])
+        padded = make_sample(ex, 8, np.random.default_rng(seed), aug, targets=3)
+        assert torch.equal(padded["targets"][0], plain["target"])
+        assert padded["weights"].tolist() == [1.0, 0.0, 0.0]
+
+
+def test_still_is_drawn_per_target():
+    ex = multi_example()
+    s = make_sample(ex, None, np.random.default_rng(0), Augment(still=1.0), targets=3)
+    assert torch.count_nonzero(s["cameras"]) == 0 and bool(s["masks"].all())
+    for k in range(3):
+        assert torch.equal(s["targets"][k], s["image"])
+    kinds = set()
+    for seed in range(30):
+        s = make_sample(ex, None, np.random.default_rng(seed), Augment(still=0.5), targets=3)
+        kinds.add(tuple(bool(c.any()) for c in s["cameras"]))
+    assert len(kinds) > 2

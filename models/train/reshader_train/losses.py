@@ -210,3 +210,24 @@ def make_loss(
     net = load_feature_net(feature_net, vgg_weights).to(device)
     bf16 = precision == "bfloat16" or (precision == "auto" and bf16_is_fast(device))
     return ReshadeLoss(net, weights, torch.bfloat16 if bf16 else torch.float32, pixel)
+
+
+def multi_target_loss(
+    criterion: ReshadeLoss,
+    pred: torch.Tensor,
+    targets: torch.Tensor,
+    masks: torch.Tensor,
+    weights: torch.Tensor,
+    image: torch.Tensor,
+) -> tuple[torch.Tensor, dict[str, float]]:
+    """`criterion` over several targets per photo: pred and targets (B,N,3,H,W), masks
+    (B,N,1,H,W), weights (B,N) of 1 (a target) or 0 (padding), image (B,3,H,W).
+
+    Every term of the criterion is a mean over the batch of same-sized per-image terms, so
+    evaluating it once on the real targets stacked along the batch is the mean of the
+    per-target losses: each real target weighs the same, whichever example it is from."""
+    keep = weights > 0
+    if not bool(keep.any()):
+        raise ValueError("every target of the batch has weight 0")
+    photos = image[:, None].expand(-1, pred.shape[1], -1, -1, -1)
+    return criterion(pred[keep], targets[keep], masks[keep], photos[keep])

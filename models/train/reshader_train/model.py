@@ -446,14 +446,24 @@ class ReshadeNet(nn.Module):
         rays: torch.Tensor | None = None,
     ) -> torch.Tensor:
         """The reshaded image. `rays` (B,3,H,W), K^-1 [u, v, 1] per pixel, is needed by the
-        lobe head only (the other heads never see the geometry of the camera)."""
+        lobe head only (the other heads never see the geometry of the camera).
+
+        `camera` (B,N,3), N cameras per photo, gives (B,N,3,H,W): the encoder runs once per
+        photo, and so does the lobe head's decoder (only the closed form runs per camera);
+        the camera-conditioned heads run their decoder once per camera."""
+        many = camera.dim() == 3
+        cameras = camera.unbind(1) if many else (camera,)
         if self.lobe_field is None:
             bottleneck, skips = self.encoder(image, disparity)
-            return self.decoder(image, skips, bottleneck, camera)
-        if rays is None:
-            raise ValueError("the lobe head needs each pixel's ray (rays)")
-        lobes = self.lobes(image, disparity, rays)
-        return shade_lobes(image, lobes, disparity, rays, camera, self.cfg.deadzone)
+            out = [self.decoder(image, skips, bottleneck, c) for c in cameras]
+        else:
+            if rays is None:
+                raise ValueError("the lobe head needs each pixel's ray (rays)")
+            lobes = self.lobes(image, disparity, rays)
+            out = [
+                shade_lobes(image, lobes, disparity, rays, c, self.cfg.deadzone) for c in cameras
+            ]
+        return torch.stack(out, 1) if many else out[0]
 
     def lobes(self, image: torch.Tensor, disparity: torch.Tensor, rays: torch.Tensor):
         """The lobe head's once-per-photo output (B, 7K, H, W)."""

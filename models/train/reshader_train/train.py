@@ -29,7 +29,7 @@ from torch.utils.data import DataLoader, DistributedSampler
 from .data import Augment, DatasetError, ReshadeDataset, list_examples
 from .evaluate import masked_psnr, reshade
 from .features import CHOICES, FeatureNetError
-from .losses import LossWeights, ReshadeLoss, make_loss, pixel_loss
+from .losses import LossWeights, ReshadeLoss, make_loss, multi_target_loss, pixel_loss
 from .model import HEADS, NetConfig, ReshadeNet, count_parameters, net_config
 from .onnx_weights import load_onnx_weights
 
@@ -88,6 +88,16 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="augment with all eight symmetries of the square crop (x and y mirrors and the "
         "transpose, camera moved to match) instead of the x mirror alone: four times the "
         "geometric variety from the same renders",
+    )
+    p.add_argument(
+        "--targets-per-example",
+        type=int,
+        default=1,
+        help="reshaded targets each sample is supervised with (render --targets): one network "
+        "pass per photo (for the lobe heads; the camera-conditioned heads rerun only their "
+        "decoder) serves N cameras, and the loss is the mean over them. An example with more "
+        "targets gives N distinct ones at random; one with fewer gives all it has, and the "
+        "rest of its N are padding that the loss leaves out (default 1)",
     )
     p.add_argument("--lr", type=float, default=1e-4)
     p.add_argument("--lr-final", type=float, default=1e-5)
@@ -253,6 +263,8 @@ def save_checkpoint(
 
 @torch.no_grad()
 def validate(net: ReshadeNet, val: ReshadeDataset, count: int, device: torch.device) -> dict:
+    """PSNR on each example's first target (whatever --targets-per-example), so that the
+    numbers stay comparable between runs."""
     net.eval()
     pin, pout = [], []
     for i in range(min(count, len(val))):
@@ -292,6 +304,7 @@ def make_loader(
         augment=Augment(dihedral=args.dihedral),
         cache=not args.no_cache,
         reuse=reuse,
+        targets=args.targets_per_example,
     )
     sampler = DistributedSampler(
         dataset, num_replicas=d.world, rank=d.rank, shuffle=True, seed=args.seed, drop_last=True
@@ -426,8 +439,14 @@ def train_step(model, criterion: ReshadeLoss, opt, batch: dict, lr: float, d: Di
     for group in opt.param_groups:
         group["lr"] = lr
     b = {k: v.to(d.device, non_blocking=True) for k, v in batch.items()}
-    pred = model(b["image"], b["disparity"], b["camera"], b["rays"])
-    loss, parts = criterion(pred, b["target"], b["mask"], b["image"])
+    if "targets" in b:  # (B, N, ...): N cameras per photo, one encoder pass
+        pred = model(b["image"], b["disparity"], b["cameras"], b["rays"])
+        loss, parts = multi_target_loss(
+            criterion, pred, b["targets"], b["masks"], b["weights"], b["image"]
+        )
+    else:
+        pred = model(b["image"], b["disparity"], b["camera"], b["rays"])
+        loss, parts = criterion(pred, b["target"], b["mask"], b["image"])
     if not torch.isfinite(loss):
         raise FloatingPointError(f"loss is {float(loss)} at step {step}: {parts}")
     opt.zero_grad(set_to_none=True)
@@ -452,6 +471,8 @@ def train(args: argparse.Namespace) -> ReshadeNet:
     if d.main:
         args.run_dir.mkdir(parents=True, exist_ok=True)
     criterion = make_criterion(args, d)
+    if args.targets_per_example < 1:
+        raise ValueError(f"--targets-per-example {args.targets_per_example}: need at least 1")
     dataset, sampler, loader = make_loader(args, d, shared_example_list(args, d))
     val = ReshadeDataset(args.val_data) if args.val_data and d.main else None
 

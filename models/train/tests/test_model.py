@@ -308,3 +308,25 @@ def test_lobes_flow_slides_a_ramp_by_the_shift_and_is_the_photo_at_the_input_cam
     with torch.no_grad():
         out = net.lobes(*inputs(), rays)
     assert out.shape[1] == 11 and float(out[:, 7:].abs().max()) <= LOBE_FLOW_MAX
+
+
+def test_several_cameras_run_the_encoder_once_and_the_lobe_decoder_once():
+    from reshader_train.model import NetConfig, ReshadeNet, net_config
+
+    image, disparity = torch.rand(2, 3, 32, 32), torch.rand(2, 1, 32, 32)
+    rays, cameras = torch.randn(2, 3, 32, 32), torch.randn(2, 4, 3) * 0.2
+    for head, decoder_runs in (("lobes", 1), ("residual", 4), ("camera-linear", 4)):
+        net = ReshadeNet(NetConfig(**{**net_config("4,8,8,16,16,16").to_json(), "head": head}))
+        calls = {"encoder": 0, "decoder": 0}
+
+        def count(name, calls=calls):
+            return lambda *_: calls.__setitem__(name, calls[name] + 1)
+
+        net.encoder.register_forward_hook(count("encoder"))
+        net.decoder.out.register_forward_hook(count("decoder"))
+        out = net(image, disparity, cameras, rays)
+        assert out.shape == (2, 4, 3, 32, 32)
+        assert calls == {"encoder": 1, "decoder": decoder_runs}
+        for k in range(4):
+            one = net(image, disparity, cameras[:, k], rays)
+            assert torch.allclose(out[:, k], one, atol=1e-6)

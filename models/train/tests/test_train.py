@@ -225,3 +225,67 @@ def test_lobe_head_trains_validates_and_reaches_the_checkpoint(data, tmp_path):
     assert not any(k.startswith("decoder.camera.") for k in ckpt["model"])
     (row,) = read_csv(run / "val.csv")
     assert float(row["psnr_ours"]) > 0
+
+
+@pytest.fixture(scope="module")
+def three_targets(tmp_path_factory):
+    """Three analytic examples with three targets each (32x32)."""
+    out = tmp_path_factory.mktemp("multi") / "analytic"
+    argv = ["render", "--scenes", "analytic", "--out", str(out), "--count", "3"]
+    assert cli.main([*argv, "--size", "32x32", "--spp", "1", "--targets", "3"]) == 0
+    return out
+
+
+@pytest.mark.parametrize("head", ["lobes", "residual"])
+def test_several_targets_per_example_train_on_mixed_data(data, three_targets, tmp_path, head):
+    run = tmp_path / head
+    args = train_args(data, run, 3, head=head, targets_per_example=2, loss_weights="1,0,0")
+    args.data = [three_targets, data[0]]  # three targets each, and one
+    train(args)
+    log = read_csv(run / "log.csv")
+    assert len(log) == 3 and all(float(r["loss"]) > 0 for r in log)
+    config = json.loads((run / "config.json").read_text())
+    assert config["args"]["targets_per_example"] == 2
+    (row,) = read_csv(run / "val.csv")
+    assert float(row["psnr_ours"]) > 0
+
+
+def test_the_loss_over_n_targets_is_the_mean_of_the_per_target_losses(data, three_targets):
+    from torch.utils.data import DataLoader
+
+    from reshader_train.data import Augment, ReshadeDataset
+    from reshader_train.losses import LossWeights, ReshadeLoss, multi_target_loss
+    from reshader_train.model import NetConfig, ReshadeNet, net_config
+
+    folders = list_examples(three_targets) + list_examples(data[0])[:1]
+    ds = ReshadeDataset(folders, crop=32, augment=Augment(), targets=2)
+    torch.manual_seed(0)
+    batch = next(iter(DataLoader(ds, batch_size=4)))
+    assert batch["targets"].shape == (4, 2, 3, 32, 32)
+    assert batch["weights"].tolist() == [[1, 1], [1, 1], [1, 1], [1, 0]]
+    for head in ("lobes", "residual"):
+        cfg: NetConfig = net_config(TINY)
+        net = ReshadeNet(NetConfig(**{**cfg.to_json(), "head": head}))
+        torch.nn.init.normal_(net.decoder.out.weight, std=0.1)  # a prediction that differs
+        b = batch
+        with torch.no_grad():
+            pred = net(b["image"], b["disparity"], b["cameras"], b["rays"])
+        for pixel in ("l1", "rel-l2"):
+            criterion = ReshadeLoss(None, LossWeights(1, 0, 0), pixel=pixel)
+            loss, _ = multi_target_loss(
+                criterion, pred, b["targets"], b["masks"], b["weights"], b["image"]
+            )
+            per_target = []
+            for i in range(4):
+                for k in range(2):
+                    if b["weights"][i, k] == 0:
+                        continue
+                    with torch.no_grad():
+                        one = net(b["image"][i : i + 1], b["disparity"][i : i + 1],
+                                  b["cameras"][i : i + 1, k], b["rays"][i : i + 1])  # fmt: skip
+                    # batch of one vs four: the convolutions may sum in another order
+                    assert torch.allclose(one[0], pred[i, k], atol=1e-5)
+                    t, m = b["targets"][i : i + 1, k], b["masks"][i : i + 1, k]
+                    per_target.append(criterion(one, t, m, b["image"][i : i + 1])[0])
+            assert len(per_target) == 7
+            assert float(loss) == pytest.approx(float(torch.stack(per_target).mean()), rel=1e-5)

@@ -3,7 +3,7 @@
 //! Depth container (items appended after the JPEG), read back by the runtime; corrupt
 //! metadata and containers must give errors that say what is wrong.
 
-mod depth_support;
+use crate::depth_support;
 
 use std::path::{Path, PathBuf};
 

@@ -1,8 +1,8 @@
 //! Depth files with holes (issue 22): a renderer's sky and a sensor's speckle, read with
 //! `--depth-holes far` and `fill`, and the refusal that names the option by default.
-//! `cargo test --test depth_holes -- --nocapture` prints the fill's accuracy.
+//! `cargo test --test main depth_holes:: -- --nocapture` prints the fill's accuracy.
 
-mod spine_support;
+use crate::spine_support;
 
 use std::path::Path;
 

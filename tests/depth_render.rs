@@ -2,8 +2,8 @@
 //! run.json says which (with the model file's sha256 and the stage's time). Bad depth
 //! model options fail with a message naming the file, and nothing is written.
 
-mod depth_support;
-mod spine_support;
+use crate::depth_support;
+use crate::spine_support;
 
 use std::path::{Path, PathBuf};
 

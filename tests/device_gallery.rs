@@ -2,7 +2,7 @@
 //! on photos without depth sidecars, and `watch` with photos appearing while it runs,
 //! stopped by SIGTERM and restarted.
 
-mod depth_support;
+use crate::depth_support;
 
 use std::io::{BufRead, BufReader, Write};
 use std::path::{Path, PathBuf};

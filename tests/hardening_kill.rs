@@ -7,7 +7,7 @@
 //! deleted its temporaries, exactly the old or the new output.
 //! Nothing here is timed: the delays only spread the kills over the run.
 
-mod spine_support;
+use crate::spine_support;
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};

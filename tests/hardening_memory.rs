@@ -139,7 +139,8 @@ fn a_failed_allocation_under_the_limit_ends_the_run_even_with_backtraces_on() {
             .env("RUST_BACKTRACE", "1")
             .args([
                 "--exact",
-                "oom_child",
+                // Its name in the one test binary (tests/main.rs): the group's module path.
+                "hardening_memory::oom_child",
                 "--ignored",
                 "--nocapture",
                 "--test-threads=1",

@@ -2,7 +2,7 @@
 //! scene's geometry predicts (objects shifted by their exact parallax, what they uncover
 //! showing the surface behind), pixel by pixel away from the predicted boundaries.
 
-mod ldi_support;
+use crate::ldi_support;
 
 use ldi_support::*;
 use reshader::ldi::{Border, LdiConfig};

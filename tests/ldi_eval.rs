@@ -1,6 +1,6 @@
 //! Timing and memory harnesses for the LDI, ignored by default (one allocates a
 //! 12-megapixel LDI). Table 1 is `reshader eval-relocation`. Run with
-//! `cargo test -j 2 --test ldi_eval -- --ignored --nocapture --test-threads 1`.
+//! `cargo test -j 2 --test main ldi_eval:: -- --ignored --nocapture --test-threads 1`.
 
 use std::time::Instant;
 

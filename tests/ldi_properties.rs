@@ -1,6 +1,6 @@
 //! Properties of the LDI renderer that hold for any scene.
 
-mod ldi_support;
+use crate::ldi_support;
 
 use ldi_support::*;
 use reshader::depth::DepthMap;

@@ -2,7 +2,7 @@
 //! and `preview.html` shows the view under the pointer, opened in a real browser when
 //! `RESHADER_BROWSER` names one (scripts/test installs Debian's Chromium and sets it).
 
-mod spine_support;
+use crate::spine_support;
 
 use std::path::{Path, PathBuf};
 use std::process::Command;

@@ -1,7 +1,7 @@
 //! The runtime refuses reshading models whose manifest does not match what it feeds them,
 //! naming the field; one test per checked field, each on a copy of the fixture.
 
-mod reshade_support;
+use crate::reshade_support;
 
 use std::path::{Path, PathBuf};
 

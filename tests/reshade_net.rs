@@ -2,7 +2,7 @@
 //! encoder+decoder against the single graph, determinism across thread counts and
 //! parallel views, the per-view cost options, and the other precisions.
 
-mod reshade_support;
+use crate::reshade_support;
 
 use reshade_support::{manifest_path, max_abs_diff, scene, tract};
 use reshader::manifest::{Precision, Task};

@@ -3,7 +3,7 @@
 //! each precision and graph form, and return the photo at the input camera as the
 //! fixture is known to (its manifest records ~6e-4 at camera 0).
 
-mod reshade_support;
+use crate::reshade_support;
 
 use reshade_support::{
     base64, f32s, fixture_dir, image_from_planar, manifest_path, max_abs_diff, tract,

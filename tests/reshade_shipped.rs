@@ -4,7 +4,7 @@
 //! models, and every precision must bring most views closer to the ground truth than the
 //! photo's own shading does.
 
-mod reshade_support;
+use crate::reshade_support;
 
 use std::path::{Path, PathBuf};
 

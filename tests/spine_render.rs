@@ -1,8 +1,8 @@
 //! End-to-end renders of a tiny synthetic scene on a tiny board, against committed
 //! goldens: views with a tolerance (warping may shift by rounding), woven frames exactly.
-//! `RESHADER_UPDATE_GOLDENS=1 cargo test --test spine_render` rewrites the goldens.
+//! `RESHADER_UPDATE_GOLDENS=1 cargo test --test main spine_render::` rewrites the goldens.
 
-mod spine_support;
+use crate::spine_support;
 
 use std::path::Path;
 

@@ -8,7 +8,7 @@ use crate::depth_support;
 use std::path::{Path, PathBuf};
 
 use depth_support::*;
-use reshader::embedded_depth::{self, Container, EmbeddedError, RangeFormat};
+use reshader::depth::embedded::{self as embedded_depth, Container, EmbeddedError, RangeFormat};
 
 fn write(dir: &Path, name: &str, bytes: &[u8]) -> PathBuf {
     let path = dir.join(name);

@@ -10,10 +10,10 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use image::{Rgb, RgbImage};
-use reshader::capture::file::FrameWriter;
-use reshader::capture::live::{run_pipeline, LiveError, LiveOptions};
-use reshader::capture::{CaptureError, Frame, FrameSource, PixelFormat};
-use reshader::display::{FrameSink, PngSink};
+use reshader::device::capture::file::FrameWriter;
+use reshader::device::capture::live::{run_pipeline, LiveError, LiveOptions};
+use reshader::device::capture::{CaptureError, Frame, FrameSource, PixelFormat};
+use reshader::device::display::{FrameSink, PngSink};
 
 const TINY_BOARD: &str = r#"
 name = "tiny-4view"

@@ -9,8 +9,8 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
-use reshader::capture::file::FrameWriter;
-use reshader::capture::PixelFormat;
+use reshader::device::capture::file::FrameWriter;
+use reshader::device::capture::PixelFormat;
 
 const TINY_BOARD: &str = r#"
 name = "tiny-4view"
@@ -170,21 +170,21 @@ fn oom_child() {
     let Some(case) = std::env::var_os("RESHADER_OOM_CHILD") else {
         return;
     };
-    reshader::limits::install_panic_hook();
+    reshader::io::limits::install_panic_hook();
     let status = std::fs::read_to_string("/proc/self/status").unwrap();
     let data_kib: u64 = status
         .lines()
         .find_map(|l| l.strip_prefix("VmData:"))
         .and_then(|v| v.trim().trim_end_matches("kB").trim().parse().ok())
         .unwrap();
-    reshader::limits::apply_process_limit((data_kib + 512) << 10).unwrap();
+    reshader::io::limits::apply_process_limit((data_kib + 512) << 10).unwrap();
     if case == "oom" {
         let caught = std::panic::catch_unwind(|| {
             // A buffer the kernel refuses, as tract reports it.
             let big: Vec<u8> = Vec::new();
             panic!("failed to allocate {} bytes", big.capacity() + (1 << 30));
         });
-        assert!(caught.is_err() && reshader::limits::ran_out_of_memory());
+        assert!(caught.is_err() && reshader::io::limits::ran_out_of_memory());
         println!("reported as out of memory");
     } else {
         panic!("a bug, not the ceiling");

@@ -5,8 +5,8 @@
 use std::time::Instant;
 
 use reshader::depth::DepthMap;
-use reshader::ldi::{Ldi, LdiConfig};
-use reshader::photo::SrgbImage;
+use reshader::io::photo::SrgbImage;
+use reshader::relocate::ldi::{Ldi, LdiConfig};
 use reshader::views::{Intrinsics, ViewCamera};
 
 fn peak_rss_mb() -> f64 {

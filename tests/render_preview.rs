@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use image::{Rgb, RgbImage};
-use reshader::preview::{self, animation, page};
+use reshader::io::preview::{self, animation, page};
 use serde_json::Value;
 use spine_support::*;
 

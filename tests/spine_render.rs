@@ -154,7 +154,7 @@ fn run_json_records_inputs_cameras_and_stages() {
     let tmp = tempfile::tempdir().unwrap();
     let out = tmp.path().join("out");
     let run = render_tiny(&out, &[]);
-    let photo_sha = reshader::record::sha256_file(&tmp.path().join("photo.png")).unwrap();
+    let photo_sha = reshader::io::record::sha256_file(&tmp.path().join("photo.png")).unwrap();
     assert_eq!(run["inputs"]["photo"]["sha256"], photo_sha.as_str());
     assert_eq!(run["inputs"]["photo"]["fov_source"], "default");
     assert_eq!(run["inputs"]["depth"]["kind"], "depth");

@@ -1,5 +1,6 @@
 //! Unit tests of `depth::net`, beside it so that the module file holds the code only.
 
+use super::resize::area_taps;
 use super::*;
 
 #[test]

@@ -38,9 +38,9 @@ use crate::io::photo::SrgbImage;
 use crate::reshade::{PreparedPhoto, ReshadeError, Reshader};
 use crate::views::Intrinsics;
 
+use super::models::{other_head, other_precisions};
 use super::{
-    disparity, is_residual, manifests_where, other_head, other_precisions, planar, resample,
-    round_up, NetError, NetOptions,
+    disparity, is_residual, manifests_where, planar, resample, round_up, NetError, NetOptions,
 };
 
 /// Channels of one lobe in the graph's output (mu_x, mu_y, mu_z, sharpness, amp_r, amp_g,

@@ -1,5 +1,6 @@
 //! Unit tests of `reshade::net`, beside it so that the module file holds the code only.
 
+use super::models::partner_name;
 use super::*;
 
 #[test]

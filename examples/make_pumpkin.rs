@@ -41,7 +41,7 @@ fn main() -> Result<()> {
 
 fn read_disparity(path: &std::path::Path) -> Result<ImageBuffer<Luma<u16>, Vec<u16>>> {
     let bytes = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
-    let log_disp = reshader::npy::parse(&bytes).with_context(|| path.display().to_string())?;
+    let log_disp = reshader::io::npy::parse(&bytes).with_context(|| path.display().to_string())?;
     let disp: Vec<f32> = log_disp.data.iter().map(|v| v.exp()).collect();
     let lo = disp.iter().copied().fold(f32::INFINITY, f32::min);
     let hi = disp.iter().copied().fold(f32::NEG_INFINITY, f32::max);

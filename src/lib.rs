@@ -1,40 +1,33 @@
 //! reshader: turns one photo and its depth into the views, quilt and woven frame a
 //! lenticular light-field panel shows.
 //!
-//! Stages, each behind its own module: [`photo`] and [`depth`] load the inputs, [`views`]
-//! places the view cameras, [`reshade`] changes the shading per view, [`relocate`] moves
-//! the pixels to the view, and [`pipeline`] runs them in order and hands the views to the
-//! `interleave` crate; [`output`] and [`record`] write the results and run.json.
+//! The modules follow the data flow (docs/architecture.md has the diagram):
+//!
+//! ```text
+//! io (photo, depth files) ─▶ depth ─▶ views ─▶ reshade ─▶ relocate ─▶ interleave
+//!                                   └────────── pipeline runs them in order ──────────┘
+//!                                        device (camera, panel, gallery), eval (bench)
+//! ```
+//!
+//! [`io`] holds the file formats every stage reads and writes; [`engine`] runs the
+//! networks; [`depth`] turns the photo into a depth map; [`views`] places the view
+//! cameras; [`reshade`] changes the shading per view; [`relocate`] moves the pixels to
+//! the view; the `interleave` crate weaves the views for the panel; [`pipeline`] runs the
+//! stages in order and writes the outputs and run.json; [`device`] and [`eval`] are built
+//! on the pipeline. Imports go one way: io → engine → stages → pipeline → device and eval.
 
-pub mod bench;
-pub mod bench_reshade;
-pub mod capture;
-pub mod depth;
-pub mod depth_holes;
-pub mod depth_net;
-pub mod depth_refine;
-pub mod display;
-pub mod embedded_depth;
+// Formats and engines, below every stage.
+pub mod io;
 pub mod engine;
-pub mod eval_relocation;
-pub mod gallery;
-pub mod ldi;
-pub mod limits;
-pub mod manifest;
-pub mod npy;
-pub mod output;
-pub mod pfm;
-pub mod photo;
-pub mod pipeline;
-pub mod preflight;
-pub mod preview;
-pub mod progress;
-pub mod quilt_file;
-pub mod record;
-pub mod relocate;
-pub mod reshade;
-pub mod reshade_net;
-pub mod rgbd;
-pub mod views;
 
+// The stages, in data-flow order.
+pub mod depth;
+pub mod views;
+pub mod reshade;
+pub mod relocate;
 pub use interleave;
+
+// The stages in order, and what is built on them.
+pub mod pipeline;
+pub mod device;
+pub mod eval;

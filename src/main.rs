@@ -5,11 +5,11 @@ use std::sync::Arc;
 use anyhow::Result;
 use clap::{Args, Parser, Subcommand, ValueEnum};
 
+use reshader::depth::holes::HolePolicy;
+use reshader::depth::net::cli::{DepthInput, EstimateArgs};
 use reshader::depth::DepthKind;
-use reshader::depth_holes::HolePolicy;
-use reshader::depth_net::cli::{DepthInput, EstimateArgs};
 use reshader::interleave::{Blend, Board};
-use reshader::output;
+use reshader::io::output;
 use reshader::pipeline::{self, Product, RenderOptions, Scene, SceneDepth, ViewRequest};
 use reshader::relocate::RelocateArgs;
 
@@ -62,7 +62,7 @@ struct Cli {
     /// Memory ceiling for the run (e.g. 2G, 512M): inputs whose decoded size would take
     /// more than a quarter of it are refused, and the kernel holds the heap to it.
     #[arg(long, global = true, value_name = "SIZE", default_value = "4G",
-          value_parser = reshader::limits::parse_size)]
+          value_parser = reshader::io::limits::parse_size)]
     max_memory: u64,
     #[command(subcommand)]
     command: Command,
@@ -74,8 +74,8 @@ enum Command {
     #[command(long_about = RENDER_ABOUT)]
     Render(RenderArgs),
     /// Estimate depth for a photo: the depth it carries, or the depth network.
-    #[command(long_about = reshader::depth_net::cli::DEPTH_ABOUT)]
-    Depth(reshader::depth_net::cli::DepthCommandArgs),
+    #[command(long_about = reshader::depth::net::cli::DEPTH_ABOUT)]
+    Depth(reshader::depth::net::cli::DepthCommandArgs),
     /// Reshade the photo for a novel camera, in the input camera's frame.
     #[command(long_about = RESHADE_ABOUT)]
     Reshade(SingleViewArgs),
@@ -90,20 +90,20 @@ enum Command {
     /// List the built-in boards.
     Boards,
     /// Convert photos for a gallery: one output folder each, skipping finished ones.
-    #[command(long_about = reshader::gallery::cli::CONVERT_ABOUT)]
-    Convert(reshader::gallery::cli::ConvertArgs),
+    #[command(long_about = reshader::device::gallery::cli::CONVERT_ABOUT)]
+    Convert(reshader::device::gallery::cli::ConvertArgs),
     /// Convert photos as they appear in a folder, until SIGINT/SIGTERM.
-    #[command(long_about = reshader::gallery::cli::WATCH_ABOUT)]
-    Watch(reshader::gallery::cli::WatchArgs),
+    #[command(long_about = reshader::device::gallery::cli::WATCH_ABOUT)]
+    Watch(reshader::device::gallery::cli::WatchArgs),
     /// Show a live camera on the panel: capture, views, weave, framebuffer or PNGs.
-    #[command(long_about = reshader::capture::live::LIVE_ABOUT)]
-    Live(reshader::capture::live::LiveArgs),
+    #[command(long_about = reshader::device::capture::live::LIVE_ABOUT)]
+    Live(reshader::device::capture::live::LiveArgs),
     /// Score relocation methods against rendered novel views (Table 1) and write contact sheets.
-    #[command(long_about = reshader::eval_relocation::EVAL_ABOUT)]
-    EvalRelocation(reshader::eval_relocation::EvalArgs),
+    #[command(long_about = reshader::eval::relocation::EVAL_ABOUT)]
+    EvalRelocation(reshader::eval::relocation::EvalArgs),
     /// Time photo-to-frame conversion stage by stage against onnxruntime and the naive network.
-    #[command(long_about = reshader::bench::BENCH_ABOUT)]
-    Bench(reshader::bench::BenchArgs),
+    #[command(long_about = reshader::eval::bench::BENCH_ABOUT)]
+    Bench(reshader::eval::bench::BenchArgs),
 }
 
 const RENDER_ABOUT: &str = "\
@@ -198,7 +198,7 @@ struct SceneArgs {
     #[arg(long, allow_negative_numbers = true)]
     focus: Option<f64>,
     #[command(flatten)]
-    reshade: reshader::reshade_net::cli::ReshadeArgs,
+    reshade: reshader::reshade::net::cli::ReshadeArgs,
     #[command(flatten)]
     estimate: EstimateArgs,
 }
@@ -398,7 +398,7 @@ fn parse_pair(s: &str) -> Result<(usize, usize), String> {
 }
 
 #[global_allocator]
-static ALLOCATOR: reshader::limits::Allocator = reshader::limits::Allocator;
+static ALLOCATOR: reshader::io::limits::Allocator = reshader::io::limits::Allocator;
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
@@ -411,37 +411,37 @@ fn main() -> ExitCode {
         .filter_level(level)
         .format_timestamp(None)
         .init();
-    reshader::progress::set_verbose(cli.verbose > 0);
-    reshader::limits::set_max_memory(cli.max_memory);
-    if let Err(e) = reshader::limits::apply_process_limit(cli.max_memory) {
+    reshader::pipeline::progress::set_verbose(cli.verbose > 0);
+    reshader::io::limits::set_max_memory(cli.max_memory);
+    if let Err(e) = reshader::io::limits::apply_process_limit(cli.max_memory) {
         log::warn!("cannot set the memory limit of the process: {e}");
     }
-    reshader::limits::install_panic_hook();
-    reshader::limits::install_abort_report();
-    ExitCode::from(reshader::limits::run_guarded(|| run(cli.command)))
+    reshader::io::limits::install_panic_hook();
+    reshader::io::limits::install_abort_report();
+    ExitCode::from(reshader::io::limits::run_guarded(|| run(cli.command)))
 }
 
 fn run(command: Command) -> Result<()> {
     match command {
         Command::Render(args) => render(args),
         Command::Depth(args) => {
-            println!("{}", reshader::depth_net::cli::run_depth(&args)?);
+            println!("{}", reshader::depth::net::cli::run_depth(&args)?);
             Ok(())
         }
         Command::Reshade(args) => reshade(args),
         Command::View(args) => view(args),
         Command::Sheet(args) => sheet(args),
         Command::Weave(args) => weave(args),
-        Command::Convert(args) => Ok(reshader::gallery::cli::run_convert(&args)?),
-        Command::Watch(args) => Ok(reshader::gallery::cli::run_watch(&args)?),
-        Command::Live(args) => Ok(reshader::capture::live::run_live(&args)?),
+        Command::Convert(args) => Ok(reshader::device::gallery::cli::run_convert(&args)?),
+        Command::Watch(args) => Ok(reshader::device::gallery::cli::run_watch(&args)?),
+        Command::Live(args) => Ok(reshader::device::capture::live::run_live(&args)?),
         Command::EvalRelocation(args) => {
-            reshader::eval_relocation::run(&args)?;
+            reshader::eval::relocation::run(&args)?;
             Ok(())
         }
         Command::Bench(args) => {
             let command: Vec<String> = std::env::args().collect();
-            reshader::bench::main(&args, &command.join(" "))?;
+            reshader::eval::bench::main(&args, &command.join(" "))?;
             Ok(())
         }
         Command::Boards => {
@@ -452,9 +452,10 @@ fn run(command: Command) -> Result<()> {
 }
 
 /// Refuses a `--model` that names the wrong kind of file before anything loads.
-fn check_model(args: &reshader::reshade_net::cli::ReshadeArgs) -> Result<()> {
-    if let Some(model) = reshader::preflight::chosen_reshade_model(args.model.as_deref()) {
-        reshader::preflight::check_model_path("--model", &model)?;
+fn check_model(args: &reshader::reshade::net::cli::ReshadeArgs) -> Result<()> {
+    if let Some(model) = reshader::pipeline::preflight::chosen_reshade_model(args.model.as_deref())
+    {
+        reshader::pipeline::preflight::check_model_path("--model", &model)?;
     }
     Ok(())
 }
@@ -473,15 +474,15 @@ fn render(args: RenderArgs) -> Result<()> {
     args.filter.apply(&mut board)?;
     // The memory the sizes imply, before anything large is allocated. A photo whose
     // header cannot be read is reported by loading it; its board still counts.
-    let photo_size = reshader::photo::header_size(&args.scene.photo).unwrap_or((1, 1));
-    let size = reshader::preflight::render_size(
+    let photo_size = reshader::io::photo::header_size(&args.scene.photo).unwrap_or((1, 1));
+    let size = reshader::pipeline::preflight::render_size(
         photo_size,
         &board,
         &args.only,
         &args.scene.reshade,
         !matches!(args.scene.depth, DepthInput::File(_)),
     );
-    reshader::preflight::check_memory(
+    reshader::pipeline::preflight::check_memory(
         format!(
             "rendering a {}x{} photo for {} ({} views of {}x{})",
             photo_size.0,
@@ -491,8 +492,8 @@ fn render(args: RenderArgs) -> Result<()> {
             board.view_size().0,
             board.view_size().1
         ),
-        &reshader::preflight::estimate(&size),
-        reshader::preflight::RENDER_HINT,
+        &reshader::pipeline::preflight::estimate(&size),
+        reshader::pipeline::preflight::RENDER_HINT,
     )?;
     let depth = args.scene.scene_depth()?;
     let reshader = args.scene.reshade.build()?;
@@ -513,7 +514,7 @@ fn render(args: RenderArgs) -> Result<()> {
         only: args.only,
         sbs_pair: args.sbs_pair,
         out_dir: args.out,
-        progress: reshader::progress::Progress::start(views as u64, "views", false),
+        progress: reshader::pipeline::progress::Progress::start(views as u64, "views", false),
     };
     let record = pipeline::render(&opts, &*reshader, &*args.relocate.build())?;
     println!(
@@ -528,25 +529,25 @@ fn render(args: RenderArgs) -> Result<()> {
 
 /// Refuses a single view at the photo's resolution that would not fit --max-memory.
 fn check_single_view_memory(args: &SceneArgs, reshading: bool) -> Result<()> {
-    let Some(photo) = reshader::photo::header_size(&args.photo) else {
+    let Some(photo) = reshader::io::photo::header_size(&args.photo) else {
         return Ok(());
     };
-    let size = reshader::preflight::single_view_size(
+    let size = reshader::pipeline::preflight::single_view_size(
         photo,
         reshading.then_some(&args.reshade),
         !matches!(args.depth, DepthInput::File(_)),
     );
-    reshader::preflight::check_memory(
+    reshader::pipeline::preflight::check_memory(
         format!("a view of a {}x{} photo", photo.0, photo.1),
-        &reshader::preflight::estimate(&size),
-        reshader::preflight::VIEW_HINT,
+        &reshader::pipeline::preflight::estimate(&size),
+        reshader::pipeline::preflight::VIEW_HINT,
     )?;
     Ok(())
 }
 
 fn load_scene(args: &SceneArgs) -> Result<Scene> {
     let depth = args.scene_depth()?;
-    let mut timings = reshader::record::Timings::default();
+    let mut timings = reshader::io::record::Timings::default();
     Ok(Scene::load(&args.photo, &depth, args.fov, &mut timings)?)
 }
 
@@ -638,15 +639,15 @@ fn weave(args: WeaveArgs) -> Result<()> {
     output::check_output_file(&args.out)?;
     let mut board = pipeline::load_board(&args.board, args.calibration.as_deref())?;
     args.filter.apply(&mut board)?;
-    reshader::preflight::check_memory(
+    reshader::pipeline::preflight::check_memory(
         format!("weaving for {}", board.name()),
-        &reshader::preflight::weave_estimate(&board),
+        &reshader::pipeline::preflight::weave_estimate(&board),
         "",
     )?;
     let panel = if args.input.is_dir() {
         pipeline::weave_dir(&args.input, &board)?
     } else {
-        reshader::quilt_file::weave(&args.input, &board)?
+        reshader::io::quilt_file::weave(&args.input, &board)?
     };
     let bytes = output::encode_png(&args.out, &panel)?;
     output::write_atomic(&args.out, &bytes)?;

@@ -3,9 +3,9 @@
 
 use std::path::PathBuf;
 
-use reshader::bench::report::{self, Case, NaiveRow, PeerRow, Report, StageRow, Stat};
-use reshader::bench::{self as bench, BenchArgs, ModelChoice};
-use reshader::manifest::Precision;
+use reshader::engine::manifest::Precision;
+use reshader::eval::bench::report::{self, Case, NaiveRow, PeerRow, Report, StageRow, Stat};
+use reshader::eval::bench::{self as bench, BenchArgs, ModelChoice};
 
 fn stat(median: f64) -> Stat {
     Stat {
@@ -281,7 +281,7 @@ fn bad_options_fail_before_measuring() {
 #[test]
 fn the_reshade_bench_reports_the_lobe_head_s_cost_per_view() {
     let root = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
-    let config = reshader::bench_reshade::BenchConfig {
+    let config = reshader::eval::reshade::BenchConfig {
         model: root.join("models/fixtures"),
         width: 64,
         height: 32,
@@ -292,7 +292,7 @@ fn the_reshade_bench_reports_the_lobe_head_s_cost_per_view() {
         precisions: vec![Precision::Fp32, Precision::Int8],
         ..Default::default()
     };
-    let text = reshader::bench_reshade::run(&config).unwrap();
+    let text = reshader::eval::reshade::run(&config).unwrap();
     for precision in ["fp32", "int8"] {
         let row = text
             .lines()
@@ -309,12 +309,12 @@ fn the_reshade_bench_reports_the_lobe_head_s_cost_per_view() {
     assert!(text.contains("### Per-view cost options"), "{text}");
 
     // A lobe manifest alone: its row only.
-    let alone = reshader::bench_reshade::BenchConfig {
+    let alone = reshader::eval::reshade::BenchConfig {
         model: root.join("models/fixtures/reshade-fixture-fp32-lobes.json"),
         precisions: vec![Precision::Fp32],
         ..config
     };
-    let text = reshader::bench_reshade::run(&alone).unwrap();
+    let text = reshader::eval::reshade::run(&alone).unwrap();
     assert!(text.contains("| tract | fp32 lobes |"), "{text}");
     assert!(!text.contains("| tract | fp32 | "), "{text}");
 }
@@ -322,7 +322,7 @@ fn the_reshade_bench_reports_the_lobe_head_s_cost_per_view() {
 #[test]
 fn reshader_bench_times_the_lobe_head_in_the_reshading_rows() {
     let mut args = tiny_args();
-    args.reshade.head = Some(reshader::reshade_net::cli::Head::Lobes);
+    args.reshade.head = Some(reshader::reshade::net::cli::Head::Lobes);
     args.reshade.precision = Some(Precision::Fp32);
     let r = bench::run(&args, "test").unwrap();
     assert!(

@@ -54,7 +54,7 @@ fn depth_command_writes_scene_depth_in_the_requested_range() {
         stdout.contains("depth from network (fixture-logdisp"),
         "{stdout}"
     );
-    let map = reshader::npy::parse(&std::fs::read(&out).unwrap()).unwrap();
+    let map = reshader::io::npy::parse(&std::fs::read(&out).unwrap()).unwrap();
     assert_eq!((map.cols, map.rows), (96, 48));
     // Clamping allows [near/2, 10 (near + budget)]; the percentiles sit at 2 and 5.
     let (lo, hi) = map

@@ -3,12 +3,12 @@
 //! Depth container (items appended after the JPEG), read back by the runtime; corrupt
 //! metadata and containers must give errors that say what is wrong.
 
-mod depth_support;
+use crate::depth_support;
 
 use std::path::{Path, PathBuf};
 
 use depth_support::*;
-use reshader::embedded_depth::{self, Container, EmbeddedError, RangeFormat};
+use reshader::depth::embedded::{self as embedded_depth, Container, EmbeddedError, RangeFormat};
 
 fn write(dir: &Path, name: &str, bytes: &[u8]) -> PathBuf {
     let path = dir.join(name);

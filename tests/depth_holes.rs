@@ -1,14 +1,14 @@
 //! Depth files with holes (issue 22): a renderer's sky and a sensor's speckle, read with
 //! `--depth-holes far` and `fill`, and the refusal that names the option by default.
-//! `cargo test --test depth_holes -- --nocapture` prints the fill's accuracy.
+//! `cargo test --test main depth::holes:: -- --nocapture` prints the fill's accuracy.
 
-mod spine_support;
+use crate::spine_support;
 
 use std::path::Path;
 
+use reshader::depth::holes::HolePolicy;
 use reshader::depth::{DepthKind, DepthMap};
-use reshader::depth_holes::HolePolicy;
-use reshader::photo::SrgbImage;
+use reshader::io::photo::SrgbImage;
 use spine_support::*;
 
 const W: usize = 96;

@@ -7,7 +7,9 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use image::RgbImage;
-use reshader::depth_net::{self, DepthNet, DepthNetError, OutputKind, SceneScale, StageOptions};
+use reshader::depth::net::{
+    self as depth_net, DepthNet, DepthNetError, OutputKind, SceneScale, StageOptions,
+};
 use reshader::engine::tract::TractEngine;
 use serde_json::Value;
 

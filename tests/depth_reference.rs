@@ -6,7 +6,7 @@
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-use reshader::depth_net::{DepthNet, OutputKind};
+use reshader::depth::net::{DepthNet, OutputKind};
 use reshader::engine::tract::TractEngine;
 
 fn third_party() -> PathBuf {
@@ -65,11 +65,11 @@ fn int8_network_matches_the_original_implementation_on_both_photos() {
         ("columns", 0.08, 0.007, 0.9985),
         ("pumpkin", 0.6, 0.022, 0.9992),
     ] {
-        let photo = reshader::photo::load_rgb8(&dir.join(format!("input/{name}.jpg"))).unwrap();
+        let photo = reshader::io::photo::load_rgb8(&dir.join(format!("input/{name}.jpg"))).unwrap();
         let out = net.estimate(&photo).unwrap();
         assert_eq!(out.kind, OutputKind::LogDisparity);
         let bytes = std::fs::read(dir.join(format!("output/{name}.npy"))).unwrap();
-        let reference = reshader::npy::parse(&bytes).unwrap();
+        let reference = reshader::io::npy::parse(&bytes).unwrap();
         assert_eq!(
             (out.map.width, out.map.height),
             (reference.cols, reference.rows)

@@ -3,7 +3,7 @@
 //! does — as an 8-pixel ramp, centred 3 pixels off the photo's edge. After refinement
 //! the depth must step exactly at the photo's edge, with no in-between values left.
 
-use reshader::depth_refine::{refine_disparity, RefineOptions};
+use reshader::depth::refine::{refine_disparity, RefineOptions};
 
 const W: usize = 64;
 const H: usize = 24;

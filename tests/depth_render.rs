@@ -2,8 +2,8 @@
 //! run.json says which (with the model file's sha256 and the stage's time). Bad depth
 //! model options fail with a message naming the file, and nothing is written.
 
-mod depth_support;
-mod spine_support;
+use crate::depth_support;
+use crate::spine_support;
 
 use std::path::{Path, PathBuf};
 
@@ -70,7 +70,7 @@ fn render_without_depth_runs_the_shipped_network() {
     );
     assert_eq!(depth["precision"], "fp32");
     let onnx = repo("models/depth/tiefenrausch-fp32.onnx");
-    let sha = reshader::record::sha256_file(&onnx).unwrap();
+    let sha = reshader::io::record::sha256_file(&onnx).unwrap();
     assert_eq!(depth["model_file"]["sha256"], sha.as_str());
     assert_eq!(depth["native_size"], serde_json::json!([288, 384]));
     // The robust ends of the pumpkin's disparity land at near = 1 and near + budget = 5.
@@ -227,7 +227,7 @@ fn depth_file_is_recorded_with_its_sha256() {
     let depth = &run["inputs"]["depth"];
     assert_eq!(depth["source"], "file");
     assert_eq!(depth["kind"], "depth");
-    let sha = reshader::record::sha256_file(Path::new(&depth_file)).unwrap();
+    let sha = reshader::io::record::sha256_file(Path::new(&depth_file)).unwrap();
     assert_eq!(depth["sha256"], sha.as_str());
     assert_eq!(run["timings_ms"]["depth"], Value::Null);
 }
@@ -279,7 +279,7 @@ fn bad_depth_model_options_fail_cleanly() {
     );
 
     // A manifest for another task is refused by name.
-    let sha = reshader::record::sha256_file(&onnx).unwrap();
+    let sha = reshader::io::record::sha256_file(&onnx).unwrap();
     manifest["sha256"] = sha.into();
     manifest["task"] = "reshade".into();
     std::fs::write(&manifest_path, manifest.to_string()).unwrap();

@@ -7,8 +7,8 @@ use std::path::Path;
 use std::time::Duration;
 
 use image::{Rgb, RgbImage};
-use reshader::capture::file::{FileSource, FrameWriter};
-use reshader::capture::{ycbcr_to_rgb, CaptureError, FrameSource, PixelFormat};
+use reshader::device::capture::file::{FileSource, FrameWriter};
+use reshader::device::capture::{ycbcr_to_rgb, CaptureError, FrameSource, PixelFormat};
 
 /// BT.601 limited-range encoding of an RGB colour (the inverse the camera applies).
 fn rgb_to_ycbcr([r, g, b]: [u8; 3]) -> [u8; 3] {
@@ -203,7 +203,7 @@ fn broken_recordings_are_refused_with_the_reason() {
 }
 
 fn header(fourcc: &[u8; 4], w: u32, h: u32) -> Vec<u8> {
-    let mut bytes = reshader::capture::file::MAGIC.to_vec();
+    let mut bytes = reshader::device::capture::file::MAGIC.to_vec();
     bytes.extend_from_slice(fourcc);
     bytes.extend_from_slice(&w.to_le_bytes());
     bytes.extend_from_slice(&h.to_le_bytes());
@@ -250,10 +250,12 @@ fn paced_replay_skips_frames_the_consumer_is_too_slow_for() {
 
 #[test]
 fn missing_camera_is_a_clear_error() {
-    let err =
-        reshader::capture::open_source(Path::new("/dev/video-does-not-exist"), &Default::default())
-            .err()
-            .unwrap();
+    let err = reshader::device::capture::open_source(
+        Path::new("/dev/video-does-not-exist"),
+        &Default::default(),
+    )
+    .err()
+    .unwrap();
     assert!(
         matches!(err, CaptureError::Device { .. }),
         "unexpected error: {err}"
@@ -287,7 +289,7 @@ fn v4l2_device_when_present() {
         );
         return;
     }
-    let formats = reshader::capture::list_formats(device).unwrap();
+    let formats = reshader::device::capture::list_formats(device).unwrap();
     assert!(!formats.is_empty(), "{} lists no formats", device.display());
     if !formats.iter().any(|f| f.supported) {
         eprintln!(
@@ -296,7 +298,7 @@ fn v4l2_device_when_present() {
         );
         return;
     }
-    let mut source = reshader::capture::open_source(device, &Default::default()).unwrap();
+    let mut source = reshader::device::capture::open_source(device, &Default::default()).unwrap();
     let frame = source.next_frame().unwrap().unwrap();
     assert_eq!(frame.image.dimensions(), source.size());
 }

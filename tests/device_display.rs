@@ -4,7 +4,7 @@
 use std::path::Path;
 
 use image::{Rgb, RgbImage};
-use reshader::display::{open_sink, FbGeometry, FrameSink, FramebufferSink};
+use reshader::device::display::{open_sink, FbGeometry, FrameSink, FramebufferSink};
 
 /// A file of `len` bytes, all 0xAA, so untouched bytes are recognisable.
 fn fake_fb(path: &Path, len: usize) {

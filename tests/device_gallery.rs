@@ -2,7 +2,7 @@
 //! on photos without depth sidecars, and `watch` with photos appearing while it runs,
 //! stopped by SIGTERM and restarted.
 
-mod depth_support;
+use crate::depth_support;
 
 use std::io::{BufRead, BufReader, Write};
 use std::path::{Path, PathBuf};
@@ -71,7 +71,7 @@ fn write_depth(photo: &Path) {
         .collect();
     let stem = photo.file_stem().unwrap().to_string_lossy();
     let path = photo.with_file_name(format!("{stem}_depth.npy"));
-    std::fs::write(path, reshader::npy::encode_f32(&[h, w], &data)).unwrap();
+    std::fs::write(path, reshader::io::npy::encode_f32(&[h, w], &data)).unwrap();
 }
 
 /// The small fixture depth network (fast to load and run).
@@ -612,7 +612,7 @@ fn convert_again_when_the_depth_sidecar_changes() {
         .collect();
     std::fs::write(
         dir.path().join("one_depth.npy"),
-        reshader::npy::encode_f32(&[h, w], &data),
+        reshader::io::npy::encode_f32(&[h, w], &data),
     )
     .unwrap();
     assert_eq!(convert(), "converted");

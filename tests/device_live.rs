@@ -10,10 +10,10 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use image::{Rgb, RgbImage};
-use reshader::capture::file::FrameWriter;
-use reshader::capture::live::{run_pipeline, LiveError, LiveOptions};
-use reshader::capture::{CaptureError, Frame, FrameSource, PixelFormat};
-use reshader::display::{FrameSink, PngSink};
+use reshader::device::capture::file::FrameWriter;
+use reshader::device::capture::live::{run_pipeline, LiveError, LiveOptions};
+use reshader::device::capture::{CaptureError, Frame, FrameSource, PixelFormat};
+use reshader::device::display::{FrameSink, PngSink};
 
 const TINY_BOARD: &str = r#"
 name = "tiny-4view"
@@ -432,7 +432,7 @@ fn a_camera_unplugged_mid_stream_is_a_clear_error() {
 
 /// Achieved frame rate at the default working resolution, from a recording of a
 /// 640x480 MJPEG camera at 30 fps (150 frames). Prints the numbers; run on demand:
-/// `cargo test --test device_live -- --ignored --nocapture`.
+/// `cargo test --test main device_live:: -- --ignored --nocapture`.
 #[test]
 #[ignore = "measurement, not a check: run with --ignored --nocapture"]
 fn measure_live_fps_from_recorded_frames() {
@@ -473,7 +473,7 @@ fn measure_live_fps_from_recorded_frames() {
 
 /// Frame rate with the depth stage (shipped network, LDI relocation) for the Portrait at
 /// its default working resolution and at half of it, depth on every frame and reused
-/// for 1 s. Run on demand: `cargo test --test device_live measure_live_fps_with_depth
+/// for 1 s. Run on demand: `cargo test --test main device_live::measure_live_fps_with_depth
 /// -- --ignored --nocapture`.
 #[test]
 #[ignore = "measurement, not a check: run with --ignored --nocapture"]
@@ -509,7 +509,7 @@ fn measure_live_fps_with_depth() {
 /// Frame rate with reshading on a 640x480 recording through Looking Glass Portrait (48
 /// views) at working size 210x280, depth reused for 1 s: no model, the fixture network,
 /// the shipped model when models/reshade exists, and $MEASURE_RESHADE_MODEL if set.
-/// `cargo test --test device_live measure_live_fps_with_reshading -- --ignored --nocapture`.
+/// `cargo test --test main device_live::measure_live_fps_with_reshading -- --ignored --nocapture`.
 #[test]
 #[ignore = "measurement, not a check: run with --ignored --nocapture"]
 fn measure_live_fps_with_reshading() {

@@ -86,7 +86,7 @@ fn transpose_perm_that_is_no_permutation_is_refused_before_tract() {
     let model = ModelSource {
         path: &path,
         bytes: &bytes,
-        precision: reshader::manifest::Precision::Fp32,
+        precision: reshader::engine::manifest::Precision::Fp32,
     };
     let err = TractEngine::new(1)
         .plan(model, &[("image", vec![1, 8, 12, 3])], &["depth"])

@@ -5,7 +5,7 @@
 //! below that codes flat 8x8 blocks (DC coefficients only). Every photo gets a depth
 //! sidecar so that the test does not depend on the depth network.
 
-mod spine_support;
+use crate::spine_support;
 
 use std::path::Path;
 use std::process::Command;

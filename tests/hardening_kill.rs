@@ -7,7 +7,7 @@
 //! deleted its temporaries, exactly the old or the new output.
 //! Nothing here is timed: the delays only spread the kills over the run.
 
-mod spine_support;
+use crate::spine_support;
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -237,7 +237,7 @@ fn kill_loop(convert: bool) {
         let at = format!("kill {i} after {fraction:.2} of a run");
         check_after_kill(&snapshot(&out), &refs, killed, &at);
         // What the next run does first; then the folder is one run's whole output.
-        reshader::output::recover(&out).unwrap();
+        reshader::io::output::recover(&out).unwrap();
         let state = snapshot(&out);
         assert!(
             state.is_empty() || refs.iter().any(|r| r.is_complete(&state)),

@@ -9,12 +9,12 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
-use reshader::capture::file::FrameWriter;
+use reshader::device::capture::file::FrameWriter;
 
 // As in the binary, so that the child below reports a failed allocation's abort.
 #[global_allocator]
-static ALLOCATOR: reshader::limits::Allocator = reshader::limits::Allocator;
-use reshader::capture::PixelFormat;
+static ALLOCATOR: reshader::io::limits::Allocator = reshader::io::limits::Allocator;
+use reshader::device::capture::PixelFormat;
 
 const TINY_BOARD: &str = r#"
 name = "tiny-4view"
@@ -144,7 +144,8 @@ fn a_failed_allocation_under_the_limit_ends_the_run_even_with_backtraces_on() {
             .env("RUST_BACKTRACE", "1")
             .args([
                 "--exact",
-                "oom_child",
+                // Its name in the one test binary (tests/main.rs): the group's module path.
+                "hardening_memory::oom_child",
                 "--ignored",
                 "--nocapture",
                 "--test-threads=1",
@@ -158,7 +159,7 @@ fn a_failed_allocation_under_the_limit_ends_the_run_even_with_backtraces_on() {
                 "{stdout}\n{stderr}"
             ),
             "bug" => assert!(
-                output.status.code() == Some(i32::from(reshader::limits::INTERNAL_ERROR_EXIT))
+                output.status.code() == Some(i32::from(reshader::io::limits::INTERNAL_ERROR_EXIT))
                     && stderr.contains("a bug, not the ceiling")
                     && stderr.contains("error: internal error (a bug in reshader"),
                 "{:?}\n{stdout}\n{stderr}",
@@ -185,17 +186,17 @@ fn oom_child() {
     let Some(case) = std::env::var_os("RESHADER_OOM_CHILD") else {
         return;
     };
-    reshader::limits::install_panic_hook();
+    reshader::io::limits::install_panic_hook();
     let status = std::fs::read_to_string("/proc/self/status").unwrap();
     let data_kib: u64 = status
         .lines()
         .find_map(|l| l.strip_prefix("VmData:"))
         .and_then(|v| v.trim().trim_end_matches("kB").trim().parse().ok())
         .unwrap();
-    reshader::limits::apply_process_limit((data_kib + 512) << 10).unwrap();
+    reshader::io::limits::apply_process_limit((data_kib + 512) << 10).unwrap();
     if case == "abort" {
         // A plain Vec the kernel refuses: std aborts, the handler reports the ceiling.
-        reshader::limits::install_abort_report();
+        reshader::io::limits::install_abort_report();
         let big: Vec<u8> = Vec::with_capacity(1 << 30);
         std::hint::black_box(&big);
         unreachable!("a 1 GiB vector under a data limit of VmData + 512 KiB");
@@ -206,10 +207,10 @@ fn oom_child() {
             let big: Vec<u8> = Vec::new();
             panic!("failed to allocate {} bytes", big.capacity() + (1 << 30));
         });
-        assert!(caught.is_err() && reshader::limits::ran_out_of_memory());
+        assert!(caught.is_err() && reshader::io::limits::ran_out_of_memory());
         println!("reported as out of memory");
     } else {
-        let status = reshader::limits::run_guarded(|| -> Result<(), String> {
+        let status = reshader::io::limits::run_guarded(|| -> Result<(), String> {
             panic!("a bug, not the ceiling")
         });
         std::process::exit(i32::from(status));

@@ -3,7 +3,7 @@
 //! `LdiStats { width: 288, … }` and the field of view's source as `Default`, and `depth`
 //! on a Dynamic Depth photo said `DynamicDepth RangeLinear`.
 
-mod depth_support;
+use crate::depth_support;
 
 use std::process::Command;
 

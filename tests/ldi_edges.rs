@@ -2,10 +2,10 @@
 //! scene's geometry predicts (objects shifted by their exact parallax, what they uncover
 //! showing the surface behind), pixel by pixel away from the predicted boundaries.
 
-mod ldi_support;
+use crate::ldi_support;
 
 use ldi_support::*;
-use reshader::ldi::{Border, LdiConfig};
+use reshader::relocate::ldi::{Border, LdiConfig};
 
 #[derive(Clone, Copy, Debug, PartialEq)]
 enum Label {
@@ -27,7 +27,7 @@ fn label(rgb: [f32; 3]) -> Label {
 /// Compares every pixel of `rows` whose centre is more than a pixel away from all of
 /// `boundaries` (predicted x positions) with `expected(x)`.
 fn assert_golden(
-    image: &reshader::photo::SrgbImage,
+    image: &reshader::io::photo::SrgbImage,
     rows: std::ops::Range<usize>,
     boundaries: &[f64],
     expected: impl Fn(f64) -> Label,

@@ -1,12 +1,12 @@
 //! Timing and memory harnesses for the LDI, ignored by default (one allocates a
 //! 12-megapixel LDI). Table 1 is `reshader eval-relocation`. Run with
-//! `cargo test -j 2 --test ldi_eval -- --ignored --nocapture --test-threads 1`.
+//! `cargo test -j 2 --test main ldi_eval:: -- --ignored --nocapture --test-threads 1`.
 
 use std::time::Instant;
 
 use reshader::depth::DepthMap;
-use reshader::ldi::{Ldi, LdiConfig};
-use reshader::photo::SrgbImage;
+use reshader::io::photo::SrgbImage;
+use reshader::relocate::ldi::{Ldi, LdiConfig};
 use reshader::views::{Intrinsics, ViewCamera};
 
 fn peak_rss_mb() -> f64 {

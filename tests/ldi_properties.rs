@@ -1,11 +1,11 @@
 //! Properties of the LDI renderer that hold for any scene.
 
-mod ldi_support;
+use crate::ldi_support;
 
 use ldi_support::*;
 use reshader::depth::DepthMap;
-use reshader::ldi::{BandColours, Border, Ldi, LdiConfig, LdiRelocator};
-use reshader::photo::SrgbImage;
+use reshader::io::photo::SrgbImage;
+use reshader::relocate::ldi::{BandColours, Border, Ldi, LdiConfig, LdiRelocator};
 use reshader::relocate::reach_of;
 use reshader::relocate::{RelocateError, Relocator};
 

@@ -2,7 +2,7 @@
 //! in `--json` mode or with `-v`. The terminal cases run under util-linux `script`,
 //! which gives the command a pseudo-terminal; they are skipped where it is missing.
 
-mod spine_support;
+use crate::spine_support;
 
 use std::path::Path;
 use std::process::Command;

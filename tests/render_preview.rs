@@ -2,13 +2,13 @@
 //! and `preview.html` shows the view under the pointer, opened in a real browser when
 //! `RESHADER_BROWSER` names one (scripts/test installs Debian's Chromium and sets it).
 
-mod spine_support;
+use crate::spine_support;
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use image::{Rgb, RgbImage};
-use reshader::preview::{self, animation, page};
+use reshader::io::preview::{self, animation, page};
 use serde_json::Value;
 use spine_support::*;
 

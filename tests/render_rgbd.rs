@@ -1,7 +1,7 @@
 //! `render`'s RGB-D product (issue 22): the photo beside its depth as 8-bit grey, near =
 //! white, with the focus and depthiness of the views in run.json and in the PNG.
 
-mod spine_support;
+use crate::spine_support;
 
 use std::collections::HashMap;
 use std::path::Path;

@@ -1,13 +1,13 @@
 //! The runtime refuses reshading models whose manifest does not match what it feeds them,
 //! naming the field; one test per checked field, each on a copy of the fixture.
 
-mod reshade_support;
+use crate::reshade_support;
 
 use std::path::{Path, PathBuf};
 
 use reshade_support::{fixture_dir, manifest_path, tract};
-use reshader::manifest::{Precision, Task};
-use reshader::reshade_net::{NetOptions, NetReshader};
+use reshader::engine::manifest::{Precision, Task};
+use reshader::reshade::net::{NetOptions, NetReshader};
 use serde_json::{json, Value};
 
 /// Copies the fp32 single-graph fixture into a temporary directory, applies `edit` to
@@ -216,8 +216,8 @@ fn graph_names_must_match_the_manifest() {
 
 mod lobes {
     use super::*;
-    use reshader::reshade_net::cli::ReshadeArgs;
-    use reshader::reshade_net::lobes::LobeReshader;
+    use reshader::reshade::net::cli::ReshadeArgs;
+    use reshader::reshade::net::lobes::LobeReshader;
     use reshader::views::Intrinsics;
 
     /// The fp32 lobe fixture copied into `dir`, its manifest edited by `edit`.

@@ -2,13 +2,13 @@
 //! encoder+decoder against the single graph, determinism across thread counts and
 //! parallel views, the per-view cost options, and the other precisions.
 
-mod reshade_support;
+use crate::reshade_support;
 
 use reshade_support::{manifest_path, max_abs_diff, scene, tract};
-use reshader::manifest::{Precision, Task};
-use reshader::photo::SrgbImage;
+use reshader::engine::manifest::{Precision, Task};
+use reshader::io::photo::SrgbImage;
+use reshader::reshade::net::{NetOptions, NetReshader};
 use reshader::reshade::Reshader;
-use reshader::reshade_net::{NetOptions, NetReshader};
 
 const CAMERA: [f64; 3] = [0.12, -0.05, 0.2];
 
@@ -288,7 +288,7 @@ fn int8_runs_through_tract_close_to_fp32() {
 
 mod lobes {
     use super::*;
-    use reshader::reshade_net::lobes::LobeReshader;
+    use reshader::reshade::net::lobes::LobeReshader;
     use reshader::views::Intrinsics;
 
     fn lobe_net(threads: usize, options: NetOptions) -> LobeReshader {

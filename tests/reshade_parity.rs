@@ -3,16 +3,16 @@
 //! each precision and graph form, and return the photo at the input camera as the
 //! fixture is known to (its manifest records ~6e-4 at camera 0).
 
-mod reshade_support;
+use crate::reshade_support;
 
 use reshade_support::{
     base64, f32s, fixture_dir, image_from_planar, manifest_path, max_abs_diff, tract,
 };
 use reshader::depth::DepthMap;
+use reshader::engine::manifest::{Precision, Task};
 use reshader::engine::Engine;
-use reshader::manifest::{Precision, Task};
-use reshader::photo::SrgbImage;
-use reshader::reshade_net::{NetOptions, NetReshader};
+use reshader::io::photo::SrgbImage;
+use reshader::reshade::net::{NetOptions, NetReshader};
 use serde_json::Value;
 use std::sync::Arc;
 
@@ -168,8 +168,8 @@ mod onnxruntime {
 
 mod lobes {
     use super::*;
-    use reshader::manifest::LobeSpec;
-    use reshader::reshade_net::lobes::{pixel_rays, LobeField, LobeReshader};
+    use reshader::engine::manifest::LobeSpec;
+    use reshader::reshade::net::lobes::{pixel_rays, LobeField, LobeReshader};
     use reshader::views::Intrinsics;
 
     /// The brief's bound for the runtime against PyTorch: one 8-bit level per pixel.
@@ -282,7 +282,7 @@ mod lobes {
         let disparity: Vec<f32> = depth
             .data()
             .iter()
-            .map(|&z| reshader::reshade_net::disparity(z))
+            .map(|&z| reshader::reshade::net::disparity(z))
             .collect();
         let rays = pixel_rays(&camera(&p), w, h);
         let field = LobeField::new(spec, w, h, &lobes, &disparity, &rays).unwrap();

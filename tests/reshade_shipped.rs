@@ -4,15 +4,15 @@
 //! models, and every precision must bring most views closer to the ground truth than the
 //! photo's own shading does.
 
-mod reshade_support;
+use crate::reshade_support;
 
 use std::path::{Path, PathBuf};
 
 use reshade_support::{depth_from_disparity, read_npy, tract};
+use reshader::engine::manifest::Precision;
 use reshader::engine::{tract::TractEngine, Engine, ModelSource, Tensor};
-use reshader::manifest::Precision;
-use reshader::photo::SrgbImage;
-use reshader::reshade_net::{NetOptions, NetReshader};
+use reshader::io::photo::SrgbImage;
+use reshader::reshade::net::{NetOptions, NetReshader};
 
 fn shipped() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("models/reshade")

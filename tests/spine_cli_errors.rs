@@ -1,7 +1,7 @@
 //! Every bad input gives a non-zero exit, a message naming the file and the problem, and
 //! leaves no output behind.
 
-mod spine_support;
+use crate::spine_support;
 
 use std::path::Path;
 

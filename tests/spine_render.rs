@@ -1,8 +1,8 @@
 //! End-to-end renders of a tiny synthetic scene on a tiny board, against committed
 //! goldens: views with a tolerance (warping may shift by rounding), woven frames exactly.
-//! `RESHADER_UPDATE_GOLDENS=1 cargo test --test spine_render` rewrites the goldens.
+//! `RESHADER_UPDATE_GOLDENS=1 cargo test --test main spine_render::` rewrites the goldens.
 
-mod spine_support;
+use crate::spine_support;
 
 use std::path::Path;
 
@@ -154,7 +154,7 @@ fn run_json_records_inputs_cameras_and_stages() {
     let tmp = tempfile::tempdir().unwrap();
     let out = tmp.path().join("out");
     let run = render_tiny(&out, &[]);
-    let photo_sha = reshader::record::sha256_file(&tmp.path().join("photo.png")).unwrap();
+    let photo_sha = reshader::io::record::sha256_file(&tmp.path().join("photo.png")).unwrap();
     assert_eq!(run["inputs"]["photo"]["sha256"], photo_sha.as_str());
     assert_eq!(run["inputs"]["photo"]["fov_source"], "default");
     assert_eq!(run["inputs"]["depth"]["kind"], "depth");

@@ -1,6 +1,6 @@
 //! `reshader weave`: view filtering chosen by the board and overridden on the command line.
 
-mod spine_support;
+use crate::spine_support;
 
 use std::path::Path;
 

@@ -9,17 +9,17 @@ use std::path::Path;
 use std::sync::Once;
 
 use interleave::{Board, Calibration};
-use reshader::depth_net::DepthSpec;
+use reshader::depth::net::DepthSpec;
+use reshader::engine::manifest::{check_reshade, Manifest, Precision, Task};
 use reshader::engine::tract::TractEngine;
 use reshader::engine::{Engine, ModelSource};
-use reshader::manifest::{check_reshade, Manifest, Precision, Task};
 
 /// A small memory ceiling, so that inputs within the limits still decode quickly, and a
 /// limit that does not hold shows up as an allocation far above it (the fuzz script's
 /// -malloc_limit_mb).
 pub fn init() {
     static ONCE: Once = Once::new();
-    ONCE.call_once(|| reshader::limits::set_max_memory(256 << 20));
+    ONCE.call_once(|| reshader::io::limits::set_max_memory(256 << 20));
 }
 
 /// The check for the target called `name`.
@@ -43,11 +43,11 @@ pub fn by_name(name: &str) -> Option<fn(&[u8])> {
 /// that gives the field of view.
 pub fn photo(data: &[u8]) {
     init();
-    if let Ok(img) = reshader::photo::decode_rgb8(Path::new("fuzz-photo"), data) {
+    if let Ok(img) = reshader::io::photo::decode_rgb8(Path::new("fuzz-photo"), data) {
         assert!(img.width() > 0 && img.height() > 0);
-        assert!(img.width() <= reshader::photo::MAX_PHOTO_SIDE);
+        assert!(img.width() <= reshader::io::photo::MAX_PHOTO_SIDE);
     }
-    if let Some(fov) = reshader::photo::exif_hfov(data, 4032, 3024) {
+    if let Some(fov) = reshader::io::photo::exif_hfov(data, 4032, 3024) {
         assert!(fov > 0.0 && fov < 180.0, "{fov}");
     }
 }
@@ -66,10 +66,10 @@ pub fn depth(ext: &str, data: &[u8]) {
 /// Depth directories, base64 and the embedded depth image.
 pub fn embedded_depth(data: &[u8]) {
     init();
-    if let Ok(Some(depth)) = reshader::embedded_depth::parse(data) {
+    if let Ok(Some(depth)) = reshader::depth::embedded::parse(data) {
         let map = &depth.map;
         assert_eq!(map.values.len(), map.width * map.height);
-        let upright = reshader::embedded_depth::apply_orientation(map, depth.orientation);
+        let upright = reshader::depth::embedded::apply_orientation(map, depth.orientation);
         assert_eq!(upright.values.len(), map.values.len());
     }
 }
@@ -172,7 +172,7 @@ pub fn onnx_model(data: &[u8]) {
 /// sizes, so that a board passing the estimate cannot allocate beyond it, however near
 /// the limits its sizes are (fuzz/seeds/*/limit-*).
 fn check_buffers_fit(board: &Board) {
-    let estimate = reshader::preflight::weave_estimate(board).total();
+    let estimate = reshader::pipeline::preflight::weave_estimate(board).total();
     let (w, h) = board.panel_size();
     let (vw, vh) = board.view_size();
     let panel = u64::from(w) * u64::from(h) * 3;

@@ -8,10 +8,11 @@
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-use crate::manifest::Precision;
+use crate::engine::manifest::Precision;
 
 mod fp16;
 mod int8;
+pub mod manifest;
 pub mod tract;
 
 #[cfg(feature = "ort")]

@@ -9,7 +9,7 @@ use tract_onnx::prelude::*;
 use tract_onnx::tract_core::plan::SimpleState;
 
 use super::{check_names, fp16, int8, Engine, EngineError, ModelSource, Plan, Tensor};
-use crate::manifest::Precision;
+use crate::engine::manifest::Precision;
 
 const NAME: &str = "tract";
 
@@ -137,11 +137,11 @@ fn guarded<T>(
     step: impl FnOnce() -> Result<T, EngineError>,
 ) -> Result<T, EngineError> {
     std::panic::catch_unwind(std::panic::AssertUnwindSafe(step)).unwrap_or_else(|panic| {
-        let reason = crate::limits::panic_text(&*panic);
+        let reason = crate::io::limits::panic_text(&*panic);
         // tract panics when an allocation fails (the kernel holds the heap to
         // --max-memory): that is the ceiling, not a broken model.
-        let message = if crate::limits::is_out_of_memory(reason) {
-            crate::limits::OutOfMemory::now(" while loading it").to_string()
+        let message = if crate::io::limits::is_out_of_memory(reason) {
+            crate::io::limits::OutOfMemory::now(" while loading it").to_string()
         } else {
             format!("the graph is malformed (tract failed: {reason})")
         };

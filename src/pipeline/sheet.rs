@@ -6,8 +6,8 @@ use image::RgbImage;
 use interleave::Board;
 
 use super::{reshade_views, BoardRig, PipelineError, Scene};
-use crate::photo::SrgbImage;
-use crate::record::Timings;
+use crate::io::photo::SrgbImage;
+use crate::io::record::Timings;
 use crate::relocate::Relocator;
 use crate::reshade::{Reshader, TrainingFrame};
 

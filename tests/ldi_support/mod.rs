@@ -5,8 +5,8 @@
 #![allow(dead_code)]
 
 use reshader::depth::DepthMap;
-use reshader::ldi::{Ldi, LdiConfig, Rendered};
-use reshader::photo::SrgbImage;
+use reshader::io::photo::SrgbImage;
+use reshader::relocate::ldi::{Ldi, LdiConfig, Rendered};
 use reshader::views::{Intrinsics, ViewCamera};
 
 pub const W: usize = 64;

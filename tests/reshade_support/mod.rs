@@ -7,9 +7,9 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use reshader::depth::DepthMap;
+use reshader::engine::manifest::{Manifest, Precision, Task};
 use reshader::engine::{self, Engine};
-use reshader::manifest::{Manifest, Precision, Task};
-use reshader::photo::SrgbImage;
+use reshader::io::photo::SrgbImage;
 
 /// The fixture directory (`RESHADER_FIXTURE_DIR` overrides it for trying other exports).
 pub fn fixture_dir() -> PathBuf {
@@ -118,7 +118,7 @@ pub fn depth_from_disparity(w: usize, h: usize, d: &[f32]) -> DepthMap {
 
 /// A smooth test photo with edges and its depth (1–5 units).
 pub fn scene(w: u32, h: u32) -> (SrgbImage, DepthMap) {
-    reshader::bench_reshade::test_scene(w, h)
+    reshader::eval::reshade::test_scene(w, h)
 }
 
 pub fn max_abs_diff(a: &SrgbImage, b: &SrgbImage) -> f32 {

@@ -93,7 +93,7 @@ pub fn write_scene(dir: &Path) -> (String, String) {
 }
 
 pub fn write_npy(path: &Path, rows: usize, cols: usize, data: &[f32]) {
-    std::fs::write(path, reshader::npy::encode_f32(&[rows, cols], data)).unwrap();
+    std::fs::write(path, reshader::io::npy::encode_f32(&[rows, cols], data)).unwrap();
 }
 
 /// Names of the entries of `dir`, sorted.

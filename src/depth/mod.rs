@@ -1,0 +1,663 @@
+//! Depth maps: reading (.npy, 16-bit PNG, PFM, OpenEXR), validation, the normalisation
+//! of relative disparity to scene depth, resizing to the photo, and writing.
+//!
+//! Depth is the distance along the camera's +z axis (OpenCV axes), in scene units.
+//! With `--depth-kind depth` the file's units are kept. With `--depth-kind disparity`
+//! the values are taken as relative, affine-ambiguous disparity (what monocular depth
+//! networks output, larger = nearer) and mapped so that the 2nd percentile lands at
+//! depth [`FAR`] and the 98th at [`NEAR`]: the training data's subject range.
+
+pub mod embedded;
+pub mod holes;
+pub mod net;
+pub mod refine;
+
+use std::io::Cursor;
+use std::path::{Path, PathBuf};
+
+use image::{DynamicImage, ImageBuffer, ImageDecoder, ImageFormat, Luma};
+
+use crate::io::limits::{self, ReadError, TooLarge};
+use crate::io::npy::{self, NpyError};
+use crate::io::output::{FileFormat, OutputError};
+use crate::io::pfm::{self, PfmError};
+use crate::io::photo::SrgbImage;
+use holes::{self as depth_holes, HolePolicy, Holes};
+
+/// Depth given to the 98th disparity percentile of a relative-disparity map.
+pub const NEAR: f32 = 1.0;
+/// Depth given to the 2nd disparity percentile of a relative-disparity map.
+pub const FAR: f32 = 5.0;
+/// Relative disparity beyond the percentiles is clamped to this depth range, so that
+/// sky or a stray near pixel cannot produce infinite or negative depth.
+pub const MIN_DEPTH: f32 = 0.5;
+pub const MAX_DEPTH: f32 = 50.0;
+/// 16-bit PNG values are thousandths of a unit (millimetres for metric depth).
+pub const PNG_UNITS_PER_VALUE: f32 = 0.001;
+/// Depth and photo aspect ratios may differ this much (relative) before it is an error:
+/// enough for maps whose sides were rounded to multiples of 32.
+pub const ASPECT_TOLERANCE: f64 = 0.05;
+const MAX_SIDE: usize = 1 << 15;
+/// Depth files may use any unit, but their values and inverses must stay well inside
+/// f32's normal range, where resampling in disparity is exact enough.
+pub const MIN_FILE_DEPTH: f32 = 1e-32;
+pub const MAX_FILE_DEPTH: f32 = 1e32;
+
+#[derive(Debug, thiserror::Error)]
+pub enum DepthError {
+    #[error("cannot read depth map {path}: {source}")]
+    Io {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error("depth map {path}: {source}")]
+    Npy { path: PathBuf, source: NpyError },
+    #[error("depth map {path}: {source}")]
+    Pfm { path: PathBuf, source: PfmError },
+    #[error("cannot decode depth map {path}: {source}")]
+    Decode {
+        path: PathBuf,
+        source: image::ImageError,
+    },
+    #[error("depth map {path}: {source}")]
+    Exr {
+        path: PathBuf,
+        source: exr::error::Error,
+    },
+    #[error("depth map {path}: {detail}")]
+    Channels { path: PathBuf, detail: String },
+    #[error("depth map {path}: unsupported file type; use .npy, .png (16-bit), .pfm or .exr")]
+    Extension { path: PathBuf },
+    #[error("depth map {path}: size {width}x{height} is out of range")]
+    Size {
+        path: PathBuf,
+        width: usize,
+        height: usize,
+    },
+    #[error("depth map {path}: {source}")]
+    TooLarge { path: PathBuf, source: TooLarge },
+    #[error(
+        "depth map {path} has {count} pixels without depth ({what}; first at x={x}, y={y}), \
+         {percent:.2}% of the map; pass --depth-holes fill to fill them from their \
+         neighbours and the photo, or --depth-holes far to put them at the farthest depth \
+         (a sky)"
+    )]
+    Holes {
+        path: PathBuf,
+        count: usize,
+        what: String,
+        percent: f64,
+        x: usize,
+        y: usize,
+    },
+    #[error("depth map {path} has no depth at all: every value is a hole ({what})")]
+    NoDepth { path: PathBuf, what: String },
+    #[error("depth map {path} has all values equal ({value}); it carries no depth")]
+    Constant { path: PathBuf, value: f32 },
+    #[error(
+        "depth map {path} has {count} values <= 0 (first at x={x}, y={y}); \
+         depth must be positive (is it disparity? pass --depth-kind disparity)"
+    )]
+    NonPositive {
+        path: PathBuf,
+        count: usize,
+        x: usize,
+        y: usize,
+    },
+    #[error(
+        "depth map {path} has {count} values outside {MIN_FILE_DEPTH:e} to {MAX_FILE_DEPTH:e} \
+         units (first {value:e} at x={x}, y={y}); rescale it to a unit nearer the scene's"
+    )]
+    OutOfRange {
+        path: PathBuf,
+        count: usize,
+        value: f32,
+        x: usize,
+        y: usize,
+    },
+    #[error(
+        "depth map {path} is {depth_w}x{depth_h} but the photo is {photo_w}x{photo_h}: \
+         aspect ratios {:.3} and {:.3} differ (rotated or cropped?)",
+        *depth_w as f64 / *depth_h as f64, *photo_w as f64 / *photo_h as f64
+    )]
+    Aspect {
+        path: PathBuf,
+        depth_w: usize,
+        depth_h: usize,
+        photo_w: u32,
+        photo_h: u32,
+    },
+    #[error(transparent)]
+    Output(#[from] OutputError),
+}
+
+/// How the numbers in a depth file are to be read.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, clap::ValueEnum)]
+#[serde(rename_all = "snake_case")]
+pub enum DepthKind {
+    /// Distance along the optical axis, in scene units.
+    Depth,
+    /// Relative disparity (larger = nearer), affine-ambiguous.
+    Disparity,
+}
+
+/// Scene depth per pixel, rows top to bottom.
+#[derive(Clone, Debug, PartialEq)]
+pub struct DepthMap {
+    width: usize,
+    height: usize,
+    data: Vec<f32>,
+}
+
+/// The map as it was in the file, before interpretation.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RawMap {
+    pub width: usize,
+    pub height: usize,
+    pub values: Vec<f32>,
+}
+
+/// What loading did to the file, for the log and run.json.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct DepthReport {
+    pub kind: DepthKind,
+    pub file_size: [usize; 2],
+    pub resized_to: Option<[usize; 2]>,
+    /// Disparity percentiles (2nd, 98th) mapped to FAR and NEAR, for relative disparity.
+    pub disparity_percentiles: Option<[f32; 2]>,
+    pub depth_range: [f32; 2],
+    /// `--depth-holes`, and the share of the file's pixels that were holes (0 to 1).
+    pub hole_policy: HolePolicy,
+    pub hole_fraction: f64,
+}
+
+impl DepthMap {
+    pub fn new(width: usize, height: usize, data: Vec<f32>) -> Self {
+        assert_eq!(
+            width * height,
+            data.len(),
+            "depth buffer does not match size"
+        );
+        Self {
+            width,
+            height,
+            data,
+        }
+    }
+
+    pub fn width(&self) -> usize {
+        self.width
+    }
+
+    pub fn height(&self) -> usize {
+        self.height
+    }
+
+    pub fn data(&self) -> &[f32] {
+        &self.data
+    }
+
+    pub fn at(&self, x: usize, y: usize) -> f32 {
+        self.data[y * self.width + x]
+    }
+
+    /// Reads, validates and interprets a depth file, treats its holes as `holes` says
+    /// (filling follows `photo`'s colours) and fits it to `photo`'s size.
+    pub fn load(
+        path: &Path,
+        kind: DepthKind,
+        holes: HolePolicy,
+        photo: &SrgbImage,
+    ) -> Result<(Self, DepthReport), DepthError> {
+        let (photo_w, photo_h) = (photo.width(), photo.height());
+        let mut raw = read_raw(path)?;
+        check_aspect(path, &raw, photo_w, photo_h)?;
+        let hole_fraction = treat_holes(path, &mut raw, kind, holes, photo)?;
+        check_not_constant(path, &raw)?;
+        let (map, percentiles) = match kind {
+            DepthKind::Depth => (Self::from_depth(path, raw.clone())?, None),
+            DepthKind::Disparity => {
+                let (map, p) = Self::from_relative_disparity(&raw);
+                (map, Some(p))
+            }
+        };
+        let target = (photo_w as usize, photo_h as usize);
+        let resized_to = (target != (map.width, map.height)).then(|| {
+            log::info!(
+                "depth map {} is {}x{}, resizing to the photo's {}x{}",
+                path.display(),
+                map.width,
+                map.height,
+                target.0,
+                target.1
+            );
+            [target.0, target.1]
+        });
+        let map = map.resized(target.0, target.1);
+        let report = DepthReport {
+            kind,
+            file_size: [raw.width, raw.height],
+            resized_to,
+            disparity_percentiles: percentiles,
+            depth_range: map.range(),
+            hole_policy: holes,
+            hole_fraction,
+        };
+        Ok((map, report))
+    }
+
+    fn from_depth(path: &Path, raw: RawMap) -> Result<Self, DepthError> {
+        let bad: Vec<usize> = (0..raw.values.len())
+            .filter(|&i| raw.values[i] <= 0.0)
+            .collect();
+        if let Some(&first) = bad.first() {
+            return Err(DepthError::NonPositive {
+                path: path.into(),
+                count: bad.len(),
+                x: first % raw.width,
+                y: first / raw.width,
+            });
+        }
+        let outside: Vec<usize> = (0..raw.values.len())
+            .filter(|&i| !(MIN_FILE_DEPTH..=MAX_FILE_DEPTH).contains(&raw.values[i]))
+            .collect();
+        if let Some(&first) = outside.first() {
+            return Err(DepthError::OutOfRange {
+                path: path.into(),
+                count: outside.len(),
+                value: raw.values[first],
+                x: first % raw.width,
+                y: first / raw.width,
+            });
+        }
+        Ok(Self::new(raw.width, raw.height, raw.values))
+    }
+
+    /// Maps relative disparity affinely so that its 2nd/98th percentiles land at 1/FAR
+    /// and 1/NEAR, then inverts it (see the module docs). Returns the percentiles used.
+    pub fn from_relative_disparity(raw: &RawMap) -> (Self, [f32; 2]) {
+        let (mut lo, mut hi) = (percentile(&raw.values, 0.02), percentile(&raw.values, 0.98));
+        if hi <= lo {
+            // Mostly constant with a few outliers: fall back to the full range.
+            lo = raw.values.iter().copied().fold(f32::INFINITY, f32::min);
+            hi = raw.values.iter().copied().fold(f32::NEG_INFINITY, f32::max);
+        }
+        let (d_far, d_near) = (1.0 / FAR, 1.0 / NEAR);
+        let data = raw
+            .values
+            .iter()
+            .map(|&v| {
+                let d = d_far + (v - lo) / (hi - lo) * (d_near - d_far);
+                1.0 / d.clamp(1.0 / MAX_DEPTH, 1.0 / MIN_DEPTH)
+            })
+            .collect();
+        (Self::new(raw.width, raw.height, data), [lo, hi])
+    }
+
+    pub fn range(&self) -> [f32; 2] {
+        let min = self.data.iter().copied().fold(f32::INFINITY, f32::min);
+        let max = self.data.iter().copied().fold(f32::NEG_INFINITY, f32::max);
+        [min, max]
+    }
+
+    /// Depth at the given fraction (0..=1) of the sorted values.
+    pub fn percentile(&self, q: f64) -> f32 {
+        percentile(&self.data, q)
+    }
+
+    /// Bilinear resampling in disparity (1/depth), pixel centres aligned: interpolating
+    /// depth itself would bias mixed pixels towards the background.
+    pub fn resized(&self, width: usize, height: usize) -> Self {
+        if (width, height) == (self.width, self.height) {
+            return self.clone();
+        }
+        let sx = self.width as f32 / width as f32;
+        let sy = self.height as f32 / height as f32;
+        let mut data = Vec::with_capacity(width * height);
+        for y in 0..height {
+            let fy = ((y as f32 + 0.5) * sy - 0.5).clamp(0.0, (self.height - 1) as f32);
+            let (y0, ty) = (fy.floor() as usize, fy.fract());
+            let y1 = (y0 + 1).min(self.height - 1);
+            for x in 0..width {
+                let fx = ((x as f32 + 0.5) * sx - 0.5).clamp(0.0, (self.width - 1) as f32);
+                let (x0, tx) = (fx.floor() as usize, fx.fract());
+                let x1 = (x0 + 1).min(self.width - 1);
+                let d = |x: usize, y: usize| 1.0 / self.at(x, y);
+                let top = d(x0, y0) * (1.0 - tx) + d(x1, y0) * tx;
+                let bottom = d(x0, y1) * (1.0 - tx) + d(x1, y1) * tx;
+                data.push(1.0 / (top * (1.0 - ty) + bottom * ty));
+            }
+        }
+        Self::new(width, height, data)
+    }
+
+    /// Scales every depth by `factor` (geometry is scale-covariant).
+    pub fn scaled(&self, factor: f32) -> Self {
+        Self::new(
+            self.width,
+            self.height,
+            self.data.iter().map(|d| d * factor).collect(),
+        )
+    }
+
+    /// Encodes the map in the format named by the extension of `path`: .npy (float32),
+    /// .pfm, .exr (float, one channel named Z) or .png (16-bit, thousandths of a unit).
+    pub fn encode(&self, path: &Path) -> Result<Vec<u8>, DepthError> {
+        let all = [
+            FileFormat::Npy,
+            FileFormat::Pfm,
+            FileFormat::Exr,
+            FileFormat::Png,
+        ];
+        let format = FileFormat::require(path, &all)?;
+        let encode_err = |source| {
+            DepthError::Output(OutputError::Encode {
+                path: path.into(),
+                source,
+            })
+        };
+        match format {
+            FileFormat::Npy => Ok(npy::encode_f32(&[self.height, self.width], &self.data)),
+            FileFormat::Pfm => Ok(pfm::encode(self.width, self.height, &self.data)),
+            FileFormat::Exr => encode_exr(path, self),
+            FileFormat::Png => {
+                let clipped = self
+                    .data
+                    .iter()
+                    .filter(|&&d| d / PNG_UNITS_PER_VALUE > f32::from(u16::MAX))
+                    .count();
+                if clipped > 0 {
+                    log::warn!(
+                        "{}: {clipped} depths exceed the 16-bit PNG range ({} units) and are clipped",
+                        path.display(),
+                        f32::from(u16::MAX) * PNG_UNITS_PER_VALUE
+                    );
+                }
+                let values: Vec<u16> = self
+                    .data
+                    .iter()
+                    .map(|&d| (d / PNG_UNITS_PER_VALUE).round().clamp(1.0, 65535.0) as u16)
+                    .collect();
+                let img: ImageBuffer<Luma<u16>, Vec<u16>> =
+                    ImageBuffer::from_raw(self.width as u32, self.height as u32, values)
+                        .expect("buffer matches size");
+                let mut buf = Cursor::new(Vec::new());
+                img.write_to(&mut buf, ImageFormat::Png)
+                    .map_err(encode_err)?;
+                Ok(buf.into_inner())
+            }
+        }
+    }
+}
+
+/// Reads the numbers of a depth file without interpreting them.
+pub fn read_raw(path: &Path) -> Result<RawMap, DepthError> {
+    let bytes = limits::read_input(path).map_err(|e| match e {
+        ReadError::Io(source) => DepthError::Io {
+            path: path.into(),
+            source,
+        },
+        ReadError::TooLarge(source) => DepthError::TooLarge {
+            path: path.into(),
+            source,
+        },
+    })?;
+    parse_raw(path, &bytes)
+}
+
+/// [`read_raw`] on a file's bytes: `path` names the file in errors, and its extension
+/// gives the format.
+pub fn parse_raw(path: &Path, bytes: &[u8]) -> Result<RawMap, DepthError> {
+    let raw = match FileFormat::from_path(path) {
+        Some(FileFormat::Npy) => {
+            let arr = npy::parse(bytes).map_err(|source| DepthError::Npy {
+                path: path.into(),
+                source,
+            })?;
+            RawMap {
+                width: arr.cols,
+                height: arr.rows,
+                values: arr.data,
+            }
+        }
+        Some(FileFormat::Pfm) => {
+            let map = pfm::parse(bytes).map_err(|source| DepthError::Pfm {
+                path: path.into(),
+                source,
+            })?;
+            RawMap {
+                width: map.width,
+                height: map.height,
+                values: map.data,
+            }
+        }
+        Some(FileFormat::Png) => read_png16(path, bytes)?,
+        Some(FileFormat::Exr) => read_exr(path, bytes)?,
+        None => return Err(DepthError::Extension { path: path.into() }),
+    };
+    check_size(path, raw.width, raw.height, 0)?;
+    Ok(raw)
+}
+
+/// Refuses a map by its size, before its values are allocated where the format allows:
+/// `extra` is what the decoder needs besides the float values.
+fn check_size(path: &Path, width: usize, height: usize, extra: u64) -> Result<(), DepthError> {
+    if width == 0 || height == 0 || width > MAX_SIDE || height > MAX_SIDE {
+        return Err(DepthError::Size {
+            path: path.into(),
+            width,
+            height,
+        });
+    }
+    let floats = (width * height) as u64 * 4;
+    limits::check_alloc(
+        format!("a {width}x{height} map"),
+        floats.saturating_add(extra),
+        1,
+    )
+    .map_err(|source| DepthError::TooLarge {
+        path: path.into(),
+        source,
+    })
+}
+
+fn decode_image(
+    path: &Path,
+    bytes: &[u8],
+    format: ImageFormat,
+) -> Result<DynamicImage, DepthError> {
+    let decode_err = |source| DepthError::Decode {
+        path: path.into(),
+        source,
+    };
+    let mut reader = image::ImageReader::with_format(Cursor::new(bytes), format);
+    // Sides are checked below with a message that names them.
+    reader.limits(limits::image_limits(u32::MAX));
+    let decoder = reader.into_decoder().map_err(decode_err)?;
+    let (width, height) = decoder.dimensions();
+    check_size(path, width as usize, height as usize, decoder.total_bytes())?;
+    DynamicImage::from_decoder(decoder).map_err(decode_err)
+}
+
+fn read_png16(path: &Path, bytes: &[u8]) -> Result<RawMap, DepthError> {
+    let DynamicImage::ImageLuma16(img) = decode_image(path, bytes, ImageFormat::Png)? else {
+        return Err(DepthError::Channels {
+            path: path.into(),
+            detail: "a PNG depth map must be 16-bit greyscale".into(),
+        });
+    };
+    Ok(RawMap {
+        width: img.width() as usize,
+        height: img.height() as usize,
+        values: img
+            .as_raw()
+            .iter()
+            .map(|&v| f32::from(v) * PNG_UNITS_PER_VALUE)
+            .collect(),
+    })
+}
+
+/// Channels an EXR depth map is looked for in, in order; otherwise the first channel.
+const EXR_DEPTH_CHANNELS: [&str; 5] = ["Z", "depth", "Y", "R", "V"];
+
+/// EXR depth comes from the channel named Z (or depth, Y, R, V), else the first one:
+/// depth EXRs are usually single-channel, which the image crate's RGB reader refuses.
+fn read_exr(path: &Path, bytes: &[u8]) -> Result<RawMap, DepthError> {
+    use exr::prelude::*;
+    let exr_err = |source| DepthError::Exr {
+        path: path.into(),
+        source,
+    };
+    // The reader allocates every channel of a layer from its header's size: check them
+    // all before reading.
+    let meta =
+        exr::meta::MetaData::read_from_buffered(Cursor::new(bytes), false).map_err(exr_err)?;
+    for header in meta.headers.iter().filter(|h| !h.deep) {
+        let (w, h) = (header.layer_size.x(), header.layer_size.y());
+        let samples = (w as u64).saturating_mul(h as u64);
+        let stored = samples.saturating_mul(header.channels.bytes_per_pixel as u64);
+        check_size(path, w, h, stored)?;
+    }
+    let image = read()
+        .no_deep_data()
+        .largest_resolution_level()
+        .all_channels()
+        .first_valid_layer()
+        .all_attributes()
+        .from_buffered(Cursor::new(bytes))
+        .map_err(exr_err)?;
+    let layer = image.layer_data;
+    let channels = &layer.channel_data.list;
+    let channel = EXR_DEPTH_CHANNELS
+        .iter()
+        .find_map(|name| channels.iter().find(|c| c.name.eq(name)))
+        .or_else(|| channels.first())
+        .ok_or_else(|| DepthError::Channels {
+            path: path.into(),
+            detail: "the EXR has no channels".into(),
+        })?;
+    let values = match &channel.sample_data {
+        FlatSamples::F16(v) => v.iter().map(|x| x.to_f32()).collect(),
+        FlatSamples::F32(v) => v.clone(),
+        FlatSamples::U32(v) => v.iter().map(|&x| x as f32).collect(),
+    };
+    Ok(RawMap {
+        width: layer.size.x(),
+        height: layer.size.y(),
+        values,
+    })
+}
+
+/// A single-channel ("Z") float EXR.
+fn encode_exr(path: &Path, map: &DepthMap) -> Result<Vec<u8>, DepthError> {
+    use exr::prelude::*;
+    let channels = AnyChannels::sort(SmallVec::from_vec(vec![AnyChannel::new(
+        "Z",
+        FlatSamples::F32(map.data.clone()),
+    )]));
+    let layer = Layer::new(
+        (map.width, map.height),
+        LayerAttributes::named("depth"),
+        Encoding::FAST_LOSSLESS,
+        channels,
+    );
+    let mut buf = Cursor::new(Vec::new());
+    Image::from_layer(layer)
+        .write()
+        .to_buffered(&mut buf)
+        .map_err(|source| DepthError::Exr {
+            path: path.into(),
+            source,
+        })?;
+    Ok(buf.into_inner())
+}
+
+/// Refuses or fills the holes of `raw` as `policy` says; returns the share of pixels
+/// that were holes.
+fn treat_holes(
+    path: &Path,
+    raw: &mut RawMap,
+    kind: DepthKind,
+    policy: HolePolicy,
+    photo: &SrgbImage,
+) -> Result<f64, DepthError> {
+    let holes = Holes::find(&raw.values, kind);
+    let Some(first) = holes.first else {
+        return Ok(0.0);
+    };
+    if holes.count() == raw.values.len() {
+        return Err(DepthError::NoDepth {
+            path: path.into(),
+            what: holes.describe(),
+        });
+    }
+    match policy {
+        HolePolicy::Refuse => {
+            return Err(DepthError::Holes {
+                path: path.into(),
+                count: holes.count(),
+                what: holes.describe(),
+                percent: holes.fraction() * 100.0,
+                x: first % raw.width,
+                y: first / raw.width,
+            })
+        }
+        HolePolicy::Far => depth_holes::fill_far(&mut raw.values, &holes.mask, kind),
+        HolePolicy::Fill => {
+            let guide = photo.resized(raw.width as u32, raw.height as u32);
+            depth_holes::fill_guided(
+                &mut raw.values,
+                &holes.mask,
+                raw.width,
+                raw.height,
+                kind,
+                &guide,
+            );
+        }
+    }
+    log::info!(
+        "depth map {}: {} holes ({}, {:.2}% of the map), --depth-holes {}",
+        path.display(),
+        holes.count(),
+        holes.describe(),
+        holes.fraction() * 100.0,
+        policy.name()
+    );
+    Ok(holes.fraction())
+}
+
+fn check_not_constant(path: &Path, raw: &RawMap) -> Result<(), DepthError> {
+    let first = raw.values[0];
+    if raw.values.iter().all(|&v| v == first) {
+        return Err(DepthError::Constant {
+            path: path.into(),
+            value: first,
+        });
+    }
+    Ok(())
+}
+
+fn check_aspect(path: &Path, raw: &RawMap, photo_w: u32, photo_h: u32) -> Result<(), DepthError> {
+    let depth_aspect = raw.width as f64 / raw.height as f64;
+    let photo_aspect = f64::from(photo_w) / f64::from(photo_h);
+    if (depth_aspect / photo_aspect - 1.0).abs() > ASPECT_TOLERANCE {
+        return Err(DepthError::Aspect {
+            path: path.into(),
+            depth_w: raw.width,
+            depth_h: raw.height,
+            photo_w,
+            photo_h,
+        });
+    }
+    Ok(())
+}
+
+fn percentile(values: &[f32], q: f64) -> f32 {
+    let mut sorted = values.to_vec();
+    let k = ((sorted.len() - 1) as f64 * q.clamp(0.0, 1.0)).round() as usize;
+    let (_, v, _) = sorted.select_nth_unstable_by(k, f32::total_cmp);
+    *v
+}
+
+#[cfg(test)]
+mod tests;

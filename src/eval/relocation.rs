@@ -1,0 +1,639 @@
+//! `reshader eval-relocation`: how well each relocation method predicts a rendered
+//! novel view (the paper's Table 1, for our relocators).
+//!
+//! For every example of a rendered dataset (`<root>/<id>/{input,reshaded,novel}.exr,
+//! depth.exr, mask.png, meta.json`, the dataset renderer's layout) the ground-truth
+//! depth and the novel camera (`meta.json` "novel_offset", same orientation and
+//! intrinsics as the input camera) are given to each method:
+//!
+//! - **input**: the input image itself, unmoved (the floor any method must beat);
+//! - **mesh-warp**: [`MeshWarp`], the first forward-warp renderer;
+//! - **ldi**: the layered depth image ([`Ldi`]) as the runtime configures it.
+//!
+//! each once with the input's colours (relocation alone) and once with the rendered
+//! `reshaded.exr` (relocation + reshading, with the renderer's ground-truth reshading:
+//! an upper bound for the network). The LDI is also scored with the colours of the
+//! reshading model (`--model`, as `render` takes it; the shipped one by default): the
+//! full novel view the runtime would show, against relocation alone. With the rendered
+//! reshaded colours the LDI is also scored with
+//! its background band keeping the colours inpainted from the input
+//! ([`BandColours::Inpainted`]) instead of taking them from the view's reshaded image. PSNR and SSIM are computed against `novel.exr`
+//! over valid pixels (mask.png), split into pixels the input sees (the LDI renders them
+//! entirely from original pixels) and the disoccluded band (entirely from inpainted
+//! background or hole filling). HDR images are tone-mapped with a fixed exposure and
+//! gamma (×5.5, 1/2.2, clipped: the training evaluation's), depth +inf (sky) becomes
+//! [`SKY_DEPTH`].
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use crate::depth::{read_raw, DepthMap};
+use crate::io::photo::SrgbImage;
+use crate::relocate::ldi::{view_reach, BandColours, Border, Ldi, LdiConfig};
+use crate::relocate::{BorderArg, MeshWarp, RelocateError, Relocator};
+use crate::reshade::net::cli::ReshadeArgs;
+use crate::reshade::net::NetError;
+use crate::reshade::{ReshadeError, Reshader};
+use crate::views::{Intrinsics, ViewCamera};
+
+/// Images per row of a contact sheet.
+pub const SHEET_COLUMNS: usize = 4;
+
+/// Depth given to pixels that see the sky (+inf in depth.exr), in scene units.
+pub const SKY_DEPTH: f32 = 1000.0;
+
+#[derive(Debug, thiserror::Error)]
+pub enum EvalError {
+    #[error("reshading model: {0}")]
+    Model(#[from] NetError),
+    #[error("{id}: {source}")]
+    Reshade { id: String, source: ReshadeError },
+    #[error("cannot read {path}: {source}")]
+    Io {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error("cannot decode {path}: {source}")]
+    Decode {
+        path: PathBuf,
+        source: image::ImageError,
+    },
+    #[error("{path}: {detail}")]
+    Meta { path: PathBuf, detail: String },
+    #[error("{path}: {source}")]
+    Depth {
+        path: PathBuf,
+        source: crate::depth::DepthError,
+    },
+    #[error("{id}: {source}")]
+    Relocate { id: String, source: RelocateError },
+    #[error("no complete examples (folders with meta.json) under {0}")]
+    Empty(PathBuf),
+}
+
+pub const EVAL_ABOUT: &str = "\
+Score the relocation methods against ground-truth novel views rendered by the dataset
+renderer (models/train: one folder per example with input.exr, reshaded.exr, novel.exr,
+depth.exr, mask.png, meta.json), using the ground-truth depth: the input unmoved, the
+first mesh warp and the layered depth image, each with the input's colours and with the
+rendered reshaded colours. Prints mean PSNR / SSIM over valid pixels, pixels visible in
+the input and the disoccluded band (the paper's Table 1 for our relocators), and the
+LDI's build and per-view render times.
+
+Example:
+  reshader eval-relocation data/reshade/val --sheets sheets/ --json eval.json";
+
+#[derive(Clone, Debug, clap::Args)]
+pub struct EvalArgs {
+    /// Dataset split folder, e.g. data/reshade/val.
+    pub data: PathBuf,
+    /// Evaluate at most this many examples (in name order).
+    #[arg(long)]
+    pub limit: Option<usize>,
+    #[arg(long, default_value_t = 5.5)]
+    pub exposure: f32,
+    #[arg(long, default_value_t = 2.2)]
+    pub gamma: f32,
+    /// What the LDI shows beyond the photo's borders (as `render --border`).
+    #[arg(long, value_enum, default_value_t = BorderArg::Extend)]
+    pub border: BorderArg,
+    /// Also write the per-example numbers as JSON here.
+    #[arg(long)]
+    pub json: Option<PathBuf>,
+    /// Write contact sheets here, one PNG per example: top row relocation alone (input |
+    /// mesh-warp | ldi | ground-truth novel view), bottom row the same with the
+    /// ground-truth reshaded colours (reshaded input | mesh-warp | ldi | disoccluded band
+    /// in magenta over the LDI view).
+    #[arg(long)]
+    pub sheets: Option<PathBuf>,
+    /// The reshading model whose colours the LDI also relocates (`--model none`: the
+    /// input's, which repeats the relocation-alone row).
+    #[command(flatten)]
+    pub reshade: ReshadeArgs,
+}
+
+/// Where a method's colours come from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Colours {
+    /// The input photo's: relocation alone.
+    Input,
+    /// The renderer's ground-truth reshaded image: an upper bound for any network.
+    Truth,
+    /// The reshading model's, as the runtime computes them.
+    Network,
+}
+
+impl Colours {
+    fn label(self) -> &'static str {
+        match self {
+            Colours::Input => "input",
+            Colours::Truth => "reshaded (rendered GT)",
+            Colours::Network => "reshaded (network)",
+        }
+    }
+}
+
+/// PSNR (dB) and SSIM over one region; `None` when the region is empty.
+#[derive(Clone, Copy, Debug, Default, serde::Serialize)]
+pub struct Score {
+    pub psnr: Option<f64>,
+    pub ssim: Option<f64>,
+    pub pixels: usize,
+}
+
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct MethodScore {
+    pub method: &'static str,
+    pub colours: Colours,
+    pub all: Score,
+    pub visible: Score,
+    pub disoccluded: Score,
+}
+
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct ExampleReport {
+    pub id: String,
+    pub size: [u32; 2],
+    pub novel_offset: [f64; 3],
+    pub scores: Vec<MethodScore>,
+    pub ldi_build_ms: f64,
+    pub ldi_render_ms: f64,
+    pub mesh_warp_render_ms: f64,
+}
+
+struct Example {
+    id: String,
+    input: SrgbImage,
+    reshaded: SrgbImage,
+    novel: SrgbImage,
+    depth: DepthMap,
+    valid: Vec<bool>,
+    source: Intrinsics,
+    offset: [f64; 3],
+}
+
+/// Evaluates every complete example under `args.data`, prints the table and returns
+/// the per-example reports.
+pub fn run(args: &EvalArgs) -> Result<Vec<ExampleReport>, EvalError> {
+    let dirs = example_dirs(&args.data, args.limit)?;
+    let reshader = args.reshade.build()?;
+    let mut reports = Vec::new();
+    for dir in &dirs {
+        let example = load_example(dir, args.exposure, args.gamma)?;
+        let (report, sheet) = evaluate(&example, args.border.into(), reshader.as_ref())?;
+        log::info!(
+            "{}: {}",
+            report.id,
+            serde_json::to_string(&report.scores).unwrap_or_default()
+        );
+        if let Some(out) = &args.sheets {
+            write_sheet(out, &report.id, &sheet)?;
+        }
+        reports.push(report);
+    }
+    println!("{}", table(&reports, args, &reshader.description()));
+    if let Some(path) = &args.json {
+        let json = serde_json::to_vec_pretty(&reports).expect("reports serialise");
+        crate::io::output::write_atomic(path, &json).map_err(|e| EvalError::Meta {
+            path: path.clone(),
+            detail: e.to_string(),
+        })?;
+    }
+    Ok(reports)
+}
+
+fn example_dirs(root: &Path, limit: Option<usize>) -> Result<Vec<PathBuf>, EvalError> {
+    let io = |source| EvalError::Io {
+        path: root.into(),
+        source,
+    };
+    let mut dirs: Vec<PathBuf> = std::fs::read_dir(root)
+        .map_err(io)?
+        .flatten()
+        .map(|e| e.path())
+        .filter(|p| p.join("meta.json").is_file())
+        .collect();
+    dirs.sort();
+    dirs.truncate(limit.unwrap_or(usize::MAX));
+    if dirs.is_empty() {
+        return Err(EvalError::Empty(root.into()));
+    }
+    Ok(dirs)
+}
+
+fn load_example(dir: &Path, exposure: f32, gamma: f32) -> Result<Example, EvalError> {
+    let meta_path = dir.join("meta.json");
+    let text = std::fs::read_to_string(&meta_path).map_err(|source| EvalError::Io {
+        path: meta_path.clone(),
+        source,
+    })?;
+    let meta: serde_json::Value = serde_json::from_str(&text).map_err(|e| EvalError::Meta {
+        path: meta_path.clone(),
+        detail: e.to_string(),
+    })?;
+    let number = |v: &serde_json::Value, what: &str| {
+        v.as_f64().ok_or_else(|| EvalError::Meta {
+            path: meta_path.clone(),
+            detail: format!("{what} is missing or not a number"),
+        })
+    };
+    let cam = &meta["input_camera"];
+    let t = &meta["novel_offset"];
+    let offset = [
+        number(&t[0], "novel_offset[0]")?,
+        number(&t[1], "novel_offset[1]")?,
+        number(&t[2], "novel_offset[2]")?,
+    ];
+    let input = load_hdr(&dir.join("input.exr"), exposure, gamma)?;
+    let (w, h) = (input.width(), input.height());
+    // The renderer puts pixel centres at integers; ours are at +0.5.
+    let source = Intrinsics {
+        fx: number(&cam["fx"], "input_camera.fx")?,
+        fy: number(&cam["fy"], "input_camera.fy")?,
+        cx: number(&cam["cx"], "input_camera.cx")? + 0.5,
+        cy: number(&cam["cy"], "input_camera.cy")? + 0.5,
+        width: w,
+        height: h,
+    };
+    let depth_path = dir.join("depth.exr");
+    let raw = read_raw(&depth_path).map_err(|source| EvalError::Depth {
+        path: depth_path.clone(),
+        source,
+    })?;
+    if (raw.width, raw.height) != (w as usize, h as usize) {
+        return Err(EvalError::Meta {
+            path: depth_path,
+            detail: format!("{}x{} but input.exr is {w}x{h}", raw.width, raw.height),
+        });
+    }
+    let depth = raw
+        .values
+        .iter()
+        .map(|&z| {
+            if z.is_finite() && z > 0.0 {
+                z.min(SKY_DEPTH)
+            } else {
+                SKY_DEPTH
+            }
+        })
+        .collect();
+    let mask_path = dir.join("mask.png");
+    let mask = image::open(&mask_path)
+        .map_err(|source| EvalError::Decode {
+            path: mask_path.clone(),
+            source,
+        })?
+        .into_luma8();
+    Ok(Example {
+        id: dir
+            .file_name()
+            .map_or_else(String::new, |n| n.to_string_lossy().into_owned()),
+        reshaded: load_hdr(&dir.join("reshaded.exr"), exposure, gamma)?,
+        novel: load_hdr(&dir.join("novel.exr"), exposure, gamma)?,
+        input,
+        depth: DepthMap::new(w as usize, h as usize, depth),
+        valid: mask.as_raw().iter().map(|&m| m > 127).collect(),
+        source,
+        offset,
+    })
+}
+
+/// Reads a linear HDR image and tone-maps it: clamp((x · exposure)^(1/gamma), 0, 1).
+fn load_hdr(path: &Path, exposure: f32, gamma: f32) -> Result<SrgbImage, EvalError> {
+    let img = image::open(path)
+        .map_err(|source| EvalError::Decode {
+            path: path.into(),
+            source,
+        })?
+        .into_rgb32f();
+    let mut out = SrgbImage::from_rgb32f(img);
+    let (w, h) = (out.width(), out.height());
+    for y in 0..h {
+        for x in 0..w {
+            let c = out
+                .get(x, y)
+                .map(|v| (v.max(0.0) * exposure).powf(1.0 / gamma).clamp(0.0, 1.0));
+            out.put(x, y, c);
+        }
+    }
+    Ok(out)
+}
+
+/// Scores every method on one example; also returns the relocation-alone images for a sheet.
+/// The dataset's depth and offsets are already in training units.
+fn evaluate(
+    ex: &Example,
+    border: Border,
+    reshader: &dyn Reshader,
+) -> Result<(ExampleReport, Vec<SrgbImage>), EvalError> {
+    let fail = |source| EvalError::Relocate {
+        id: ex.id.clone(),
+        source,
+    };
+    let network = reshader
+        .prepare(&ex.input, &ex.depth, &ex.source)
+        .and_then(|photo| photo.reshade(ex.offset))
+        .map_err(|source| EvalError::Reshade {
+            id: ex.id.clone(),
+            source,
+        })?;
+    let view = ViewCamera {
+        centre: ex.offset,
+        intrinsics: ex.source,
+    };
+    let config = LdiConfig {
+        border,
+        ..LdiConfig::default()
+    };
+    let start = Instant::now();
+    let ldi = Ldi::build(
+        &ex.input,
+        &ex.depth,
+        &ex.source,
+        &config,
+        view_reach(ex.offset, &ex.source),
+    )
+    .map_err(fail)?;
+    let ldi_build_ms = ms(start);
+    let start = Instant::now();
+    let plain = ldi.render_detailed(&ex.input, &view).map_err(fail)?;
+    let ldi_render_ms = ms(start);
+    let visible: Vec<bool> = plain
+        .front_fraction
+        .iter()
+        .zip(&ex.valid)
+        .map(|(&f, &v)| v && f == 1.0)
+        .collect();
+    let disoccluded: Vec<bool> = plain
+        .front_fraction
+        .iter()
+        .zip(&ex.valid)
+        .map(|(&f, &v)| v && f == 0.0)
+        .collect();
+    let start = Instant::now();
+    let warp_plain = MeshWarp::default()
+        .render(&ex.input, &ex.depth, &ex.source, &view)
+        .map_err(fail)?;
+    let mesh_warp_render_ms = ms(start);
+    let warp_reshaded = MeshWarp::default()
+        .render(&ex.reshaded, &ex.depth, &ex.source, &view)
+        .map_err(fail)?;
+    let ldi_reshaded = ldi.render(&ex.reshaded, &view).map_err(fail)?;
+    let ldi_network = ldi.render(&network, &view).map_err(fail)?;
+    let inpainted_config = LdiConfig {
+        band_colours: BandColours::Inpainted,
+        ..config
+    };
+    let ldi_inpainted = Ldi::build(
+        &ex.input,
+        &ex.depth,
+        &ex.source,
+        &inpainted_config,
+        view_reach(ex.offset, &ex.source),
+    )
+    .and_then(|l| l.render(&ex.reshaded, &view))
+    .map_err(fail)?;
+    let predictions: [(&'static str, Colours, &SrgbImage); 8] = [
+        ("input", Colours::Input, &ex.input),
+        ("input", Colours::Truth, &ex.reshaded),
+        ("mesh-warp", Colours::Input, &warp_plain),
+        ("mesh-warp", Colours::Truth, &warp_reshaded),
+        ("ldi", Colours::Input, &plain.image),
+        ("ldi", Colours::Truth, &ldi_reshaded),
+        (
+            "ldi, band keeps inpainted colours",
+            Colours::Truth,
+            &ldi_inpainted,
+        ),
+        ("ldi", Colours::Network, &ldi_network),
+    ];
+    let scores = predictions
+        .iter()
+        .map(|&(method, colours, prediction)| {
+            let ssim = ssim_map(prediction, &ex.novel);
+            let score = |mask: &[bool]| region_score(prediction, &ex.novel, &ssim, mask);
+            MethodScore {
+                method,
+                colours,
+                all: score(&ex.valid),
+                visible: score(&visible),
+                disoccluded: score(&disoccluded),
+            }
+        })
+        .collect();
+    let band = highlight(&ldi_reshaded, &disoccluded);
+    let sheet = vec![
+        ex.input.clone(),
+        warp_plain,
+        plain.image,
+        ex.novel.clone(),
+        ex.reshaded.clone(),
+        warp_reshaded,
+        ldi_reshaded,
+        band,
+    ];
+    let report = ExampleReport {
+        id: ex.id.clone(),
+        size: [ex.source.width, ex.source.height],
+        novel_offset: ex.offset,
+        scores,
+        ldi_build_ms,
+        ldi_render_ms,
+        mesh_warp_render_ms,
+    };
+    Ok((report, sheet))
+}
+
+/// Per example, the PSNR of the LDI with the network's colours minus the LDI with the
+/// input's (over valid pixels); `None` when no example has both.
+pub fn network_gain(reports: &[ExampleReport]) -> Option<Vec<f64>> {
+    let psnr = |r: &ExampleReport, colours| {
+        r.scores
+            .iter()
+            .find(|s| s.method == "ldi" && s.colours == colours)
+            .and_then(|s| s.all.psnr)
+    };
+    let gains: Vec<f64> = reports
+        .iter()
+        .filter_map(|r| Some(psnr(r, Colours::Network)? - psnr(r, Colours::Input)?))
+        .collect();
+    (!gains.is_empty()).then_some(gains)
+}
+
+/// `image` with the pixels of `mask` tinted magenta.
+fn highlight(image: &SrgbImage, mask: &[bool]) -> SrgbImage {
+    let mut out = image.clone();
+    let w = image.width() as usize;
+    for (i, _) in mask.iter().enumerate().filter(|(_, &m)| m) {
+        let (x, y) = ((i % w) as u32, (i / w) as u32);
+        let [r, g, b] = out.get(x, y);
+        out.put(x, y, [0.5 + 0.5 * r, 0.5 * g, 0.5 + 0.5 * b]);
+    }
+    out
+}
+
+fn ms(start: Instant) -> f64 {
+    start.elapsed().as_secs_f64() * 1e3
+}
+
+fn region_score(a: &SrgbImage, b: &SrgbImage, ssim: &[f32], mask: &[bool]) -> Score {
+    let pixels = mask.iter().filter(|&&m| m).count();
+    if pixels == 0 {
+        return Score::default();
+    }
+    let (mut se, mut ss) = (0.0f64, 0.0f64);
+    for (i, _) in mask.iter().enumerate().filter(|(_, &m)| m) {
+        for c in 0..3 {
+            se += f64::from(a.data()[3 * i + c] - b.data()[3 * i + c]).powi(2);
+        }
+        ss += f64::from(ssim[i]);
+    }
+    let mse = (se / (3 * pixels) as f64).max(1e-12);
+    Score {
+        psnr: Some(-10.0 * mse.log10()),
+        ssim: Some(ss / pixels as f64),
+        pixels,
+    }
+}
+
+/// Per-pixel SSIM (mean over channels) with an 11-tap Gaussian window, σ = 1.5,
+/// renormalised at the borders.
+pub fn ssim_map(a: &SrgbImage, b: &SrgbImage) -> Vec<f32> {
+    let (w, h) = (a.width() as usize, a.height() as usize);
+    let (c1, c2) = (0.01f32.powi(2), 0.03f32.powi(2));
+    let mut out = vec![0.0; w * h];
+    for c in 0..3 {
+        let x: Vec<f32> = (0..w * h).map(|i| a.data()[3 * i + c]).collect();
+        let y: Vec<f32> = (0..w * h).map(|i| b.data()[3 * i + c]).collect();
+        let product =
+            |p: &[f32], q: &[f32]| p.iter().zip(q).map(|(u, v)| u * v).collect::<Vec<f32>>();
+        let (mx, my) = (blur(&x, w, h), blur(&y, w, h));
+        let (sxx, syy, sxy) = (
+            blur(&product(&x, &x), w, h),
+            blur(&product(&y, &y), w, h),
+            blur(&product(&x, &y), w, h),
+        );
+        for i in 0..w * h {
+            let (vx, vy, cov) = (
+                sxx[i] - mx[i] * mx[i],
+                syy[i] - my[i] * my[i],
+                sxy[i] - mx[i] * my[i],
+            );
+            let s = ((2.0 * mx[i] * my[i] + c1) * (2.0 * cov + c2))
+                / ((mx[i] * mx[i] + my[i] * my[i] + c1) * (vx + vy + c2));
+            out[i] += s / 3.0;
+        }
+    }
+    out
+}
+
+fn blur(v: &[f32], w: usize, h: usize) -> Vec<f32> {
+    let taps: Vec<f32> = (-5i32..=5)
+        .map(|k| (-(k * k) as f32 / (2.0 * 1.5 * 1.5)).exp())
+        .collect();
+    let pass = |src: &[f32], horizontal: bool| {
+        let mut dst = vec![0.0; w * h];
+        for y in 0..h {
+            for x in 0..w {
+                let (mut sum, mut weight) = (0.0, 0.0);
+                for (t, &g) in taps.iter().enumerate() {
+                    let k = t as i64 - 5;
+                    let (sx, sy) = if horizontal {
+                        (x as i64 + k, y as i64)
+                    } else {
+                        (x as i64, y as i64 + k)
+                    };
+                    if sx >= 0 && sy >= 0 && sx < w as i64 && sy < h as i64 {
+                        sum += g * src[sy as usize * w + sx as usize];
+                        weight += g;
+                    }
+                }
+                dst[y * w + x] = sum / weight;
+            }
+        }
+        dst
+    };
+    pass(&pass(v, true), false)
+}
+
+/// Lays `images` out in rows of [`SHEET_COLUMNS`].
+fn write_sheet(dir: &Path, id: &str, images: &[SrgbImage]) -> Result<(), EvalError> {
+    let (w, h) = (images[0].width(), images[0].height());
+    let rows = images.len().div_ceil(SHEET_COLUMNS) as u32;
+    let mut sheet = image::RgbImage::new(w * SHEET_COLUMNS as u32, h * rows);
+    for (k, img) in images.iter().enumerate() {
+        let (col, row) = ((k % SHEET_COLUMNS) as i64, (k / SHEET_COLUMNS) as i64);
+        image::imageops::replace(
+            &mut sheet,
+            &img.to_rgb8(),
+            i64::from(w) * col,
+            i64::from(h) * row,
+        );
+    }
+    let path = dir.join(format!("{id}.png"));
+    let io = |e: String| EvalError::Meta {
+        path: path.clone(),
+        detail: e,
+    };
+    std::fs::create_dir_all(dir).map_err(|e| io(e.to_string()))?;
+    let bytes = crate::io::output::encode_png(&path, &sheet).map_err(|e| io(e.to_string()))?;
+    crate::io::output::write_atomic(&path, &bytes).map_err(|e| io(e.to_string()))
+}
+
+/// The Table-1-style summary: mean PSNR / SSIM per method over all examples, then what
+/// the reshading model adds to the LDI's novel views.
+pub fn table(reports: &[ExampleReport], args: &EvalArgs, model: &str) -> String {
+    let mut out = format!(
+        "{} examples, tone mapping x{} gamma {}, LDI border {}, reshading model {model}; PSNR dB / SSIM against the ground-truth novel view\n\n",
+        reports.len(),
+        args.exposure,
+        args.gamma,
+        crate::relocate::ldi::Border::from(args.border)
+    );
+    out.push_str(
+        "| method | colours | all | visible in input | disoccluded |\n|---|---|---|---|---|\n",
+    );
+    let Some(first) = reports.first() else {
+        return out;
+    };
+    for (k, s) in first.scores.iter().enumerate() {
+        let mean = |pick: fn(&MethodScore) -> Score| {
+            let scores: Vec<Score> = reports.iter().map(|r| pick(&r.scores[k])).collect();
+            let avg = |f: fn(&Score) -> Option<f64>| {
+                let v: Vec<f64> = scores.iter().filter_map(f).collect();
+                (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64)
+            };
+            match (avg(|s| s.psnr), avg(|s| s.ssim)) {
+                (Some(p), Some(q)) => format!("{p:.2} / {q:.4}"),
+                _ => "–".into(),
+            }
+        };
+        out.push_str(&format!(
+            "| {} | {} | {} | {} | {} |\n",
+            s.method,
+            s.colours.label(),
+            mean(|m| m.all),
+            mean(|m| m.visible),
+            mean(|m| m.disoccluded)
+        ));
+    }
+    let n = reports.len() as f64;
+    if let Some(gain) = network_gain(reports) {
+        out.push_str(&format!(
+            "\nreshading in full novel views (LDI + network against LDI alone, valid pixels): {:+.2} dB mean over {} examples, {} improved\n",
+            gain.iter().sum::<f64>() / gain.len() as f64,
+            gain.len(),
+            gain.iter().filter(|&&g| g > 0.0).count()
+        ));
+    }
+    out.push_str(&format!(
+        "\nLDI build {:.1} ms, LDI render {:.1} ms/view, mesh-warp render {:.1} ms/view (means, {}x{})\n",
+        reports.iter().map(|r| r.ldi_build_ms).sum::<f64>() / n,
+        reports.iter().map(|r| r.ldi_render_ms).sum::<f64>() / n,
+        reports.iter().map(|r| r.mesh_warp_render_ms).sum::<f64>() / n,
+        first.size[0],
+        first.size[1]
+    ));
+    out
+}

@@ -1,0 +1,459 @@
+//! Relocation with a layered depth image (LDI), after 3D Photo / 3D Moments.
+//!
+//! **Build, once per photo** ([`Ldi::build`]): depth discontinuities are found on
+//! disparity (`edges`), the mesh is cut there, and behind every occluding edge a
+//! background layer is grown as wide as the widest view can see behind it and inpainted
+//! in depth and colour from the background side only (`band`). Every sample becomes
+//! a quad whose corners it shares with the samples of its surface (`mesh`).
+//!
+//! **Render, per view** ([`Ldi::render`]): project the corners with the view's off-axis
+//! camera, rasterise the quads into a supersampled z-buffer, fill whatever is still
+//! uncovered from the far side, and resolve colours: original pixels take the colour of
+//! the view's (reshaded) image, band samples the colour of the pixel they were
+//! inpainted from, also in the view's image. Everything but the projection and the
+//! rasterisation is done at build time.
+
+mod band;
+mod edges;
+mod mesh;
+mod render;
+
+use crate::depth::DepthMap;
+use crate::io::photo::SrgbImage;
+use crate::relocate::{check_sizes, PreparedRelocation, RelocateError, Relocator};
+use crate::views::{Intrinsics, ViewCamera};
+
+use render::Origin;
+
+/// What the view shows beyond the photo's borders.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Border {
+    /// The border pixels are stretched outwards far enough that no view sees past them;
+    /// the framing of the zero-parallax plane is exactly the input's.
+    Extend,
+    /// Every view is magnified about its centre by the same factor, enough that the
+    /// border never enters the frame; nothing is invented, the framing is slightly tighter.
+    Crop,
+}
+
+/// The name `--border` takes.
+impl std::fmt::Display for Border {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Self::Extend => "extend",
+            Self::Crop => "crop",
+        })
+    }
+}
+
+/// Where the inpainted background behind occluders takes its colours from in a view.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum BandColours {
+    /// From the view's own (reshaded) image, at the pixel each band sample was
+    /// inpainted from: the hidden background is shaded like the visible background.
+    View,
+    /// The colours inpainted at build time, the same in every view.
+    Inpainted,
+}
+
+#[derive(Clone, Debug, PartialEq)]
+pub struct LdiConfig {
+    /// A step between neighbouring pixels is a discontinuity when it exceeds this
+    /// fraction of the pair's larger disparity (and the local slope does not explain it).
+    pub edge_threshold: f32,
+    /// Band samples join a neighbouring surface when their disparities differ by less
+    /// than this fraction.
+    pub link_threshold: f32,
+    /// Contours with fewer edge pixels are noise and are not cut.
+    pub min_contour_px: usize,
+    /// Upper bound on the band width and border margin, in build pixels.
+    pub max_band_px: usize,
+    /// Patch half-size of the colour inpainting.
+    pub patch_radius: usize,
+    /// Random background candidates per band pixel, besides the coherent ones.
+    pub random_candidates: usize,
+    /// Subsamples per output pixel along each axis (anti-aliasing).
+    pub supersampling: usize,
+    pub border: Border,
+    pub band_colours: BandColours,
+}
+
+impl Default for LdiConfig {
+    fn default() -> Self {
+        Self {
+            edge_threshold: 0.04,
+            link_threshold: 0.08,
+            min_contour_px: 6,
+            max_band_px: 256,
+            patch_radius: 2,
+            random_candidates: 6,
+            supersampling: 2,
+            border: Border::Extend,
+            band_colours: BandColours::View,
+        }
+    }
+}
+
+/// Numbers about one build, for logs and benchmarks.
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
+pub struct LdiStats {
+    pub width: usize,
+    pub height: usize,
+    pub contours_kept: usize,
+    pub contours_dropped: usize,
+    pub cut_pairs: usize,
+    pub band_samples: usize,
+    pub vertices: usize,
+    /// Heap bytes the built LDI keeps (per-view buffers not included).
+    pub memory_bytes: usize,
+    /// The offset the band and border margin were sized for, scene units.
+    pub reach: f64,
+    pub border_margin_px: f64,
+}
+
+/// A built layered depth image of one photo.
+pub struct Ldi {
+    source: Intrinsics,
+    /// Depth units per mesh unit: the mesh holds depth divided by this power of two
+    /// near the nearest depth, so that any depth scale (micrometres to light years)
+    /// meets the same floating-point ranges and thresholds; cameras are divided by it
+    /// too, which leaves every projection unchanged.
+    scale: f64,
+    mesh: mesh::Mesh,
+    border: Border,
+    supersampling: usize,
+    /// Build-time colours of the band samples, with [`BandColours::Inpainted`].
+    band_rgb: Option<Vec<[f32; 3]>>,
+    stats: LdiStats,
+}
+
+/// A rendered view with, per output pixel, the fraction of it showing original pixels
+/// (rather than inpainted background) and the fraction no quad covered (filled from
+/// the far side after rasterisation).
+pub struct Rendered {
+    pub image: SrgbImage,
+    pub front_fraction: Vec<f32>,
+    pub hole_fraction: Vec<f32>,
+}
+
+/// The farthest a view at `view`'s centre can see behind an edge, expressed as an
+/// equivalent sideways offset: tz moves points radially by up to half the image
+/// diagonal's worth of pixels per unit disparity.
+pub fn view_reach(centre: [f64; 3], source: &Intrinsics) -> f64 {
+    let sideways = centre[0].hypot(centre[1]);
+    let half_diagonal = f64::from(source.width).hypot(f64::from(source.height)) / 2.0;
+    sideways + centre[2].abs() * half_diagonal / source.fx.min(source.fy)
+}
+
+impl Ldi {
+    /// Builds the LDI of a photo: `colours` guide the inpainting (each view's own
+    /// colours are used when rendering), `reach` is the largest view offset to serve
+    /// (see [`view_reach`]).
+    pub fn build(
+        colours: &SrgbImage,
+        depth: &DepthMap,
+        source: &Intrinsics,
+        config: &LdiConfig,
+        reach: f64,
+    ) -> Result<Self, RelocateError> {
+        check_sizes(colours, depth, source)?;
+        let (w, h) = (depth.width(), depth.height());
+        let scale = mesh_scale(depth.data());
+        let unit = scale as f32;
+        let disparity: Vec<f32> = depth.data().iter().map(|&z| (unit / z).max(1e-6)).collect();
+        let reach_units = reach / scale;
+        let cuts = edges::detect(
+            &disparity,
+            w,
+            h,
+            config.edge_threshold,
+            config.min_contour_px,
+        );
+        let f = source.fx.max(source.fy);
+        let band = band::grow(&band::BandInput {
+            width: w,
+            height: h,
+            disparity: &disparity,
+            colours: colours.data(),
+            cuts: &cuts,
+            px_per_disparity: f * reach_units,
+            max_band_px: config.max_band_px,
+            threshold: config.edge_threshold,
+            patch_radius: config.patch_radius,
+            random_candidates: config.random_candidates,
+        });
+        let (lo, hi) = disparity
+            .iter()
+            .fold((f32::INFINITY, 0.0f32), |(lo, hi), &d| {
+                (lo.min(d), hi.max(d))
+            });
+        let margin = (f * reach_units * f64::from(hi - lo))
+            .ceil()
+            .min(config.max_band_px as f64)
+            + 1.0;
+        let ray = |u: f64, v: f64| {
+            [
+                ((u - source.cx) / source.fx) as f32,
+                ((v - source.cy) / source.fy) as f32,
+            ]
+        };
+        let mesh = mesh::build(&mesh::MeshInput {
+            width: w,
+            height: h,
+            disparity: &disparity,
+            cuts: &cuts,
+            band: &band,
+            link_threshold: config.link_threshold,
+            ray: &ray,
+            border_margin: if config.border == Border::Extend {
+                margin
+            } else {
+                0.0
+            },
+        });
+        let stats = LdiStats {
+            width: w,
+            height: h,
+            contours_kept: cuts.contours_kept,
+            contours_dropped: cuts.contours_dropped,
+            cut_pairs: cuts.pairs(&disparity).count(),
+            band_samples: band.disparity.len(),
+            vertices: mesh.vertices.len(),
+            memory_bytes: mesh.vertices.capacity() * std::mem::size_of::<mesh::Vertex>()
+                + mesh.samples.capacity() * std::mem::size_of::<mesh::Sample>(),
+            reach,
+            border_margin_px: margin,
+        };
+        log::info!(
+            "LDI built: {}x{}, {} contours cut ({} dropped), {} vertices, {} in the \
+             background band, {}, border margin {} px",
+            stats.width,
+            stats.height,
+            stats.contours_kept,
+            stats.contours_dropped,
+            stats.vertices,
+            stats.band_samples,
+            crate::io::limits::Bytes(stats.memory_bytes as u64),
+            stats.border_margin_px
+        );
+        let band_rgb = (config.band_colours == BandColours::Inpainted).then(|| {
+            band.source
+                .iter()
+                .map(|&i| colours.get(i % w as u32, i / w as u32))
+                .collect()
+        });
+        Ok(Self {
+            source: *source,
+            scale,
+            mesh,
+            border: config.border,
+            supersampling: config.supersampling.max(1),
+            band_rgb,
+            stats,
+        })
+    }
+
+    pub fn stats(&self) -> LdiStats {
+        self.stats
+    }
+
+    /// The view seen by `view`, with `colours` (the view's reshaded image, in the build
+    /// camera's frame) on the original pixels.
+    pub fn render(
+        &self,
+        colours: &SrgbImage,
+        view: &ViewCamera,
+    ) -> Result<SrgbImage, RelocateError> {
+        Ok(self.render_detailed(colours, view)?.image)
+    }
+
+    pub fn render_detailed(
+        &self,
+        colours: &SrgbImage,
+        view: &ViewCamera,
+    ) -> Result<Rendered, RelocateError> {
+        let (w, h) = (self.stats.width, self.stats.height);
+        if (colours.width() as usize, colours.height() as usize) != (w, h) {
+            return Err(RelocateError::SizeMismatch {
+                colour_w: colours.width(),
+                colour_h: colours.height(),
+                depth_w: w,
+                depth_h: h,
+                camera_w: self.source.width,
+                camera_h: self.source.height,
+            });
+        }
+        let k = self.supersampling;
+        let intrinsics = supersampled(&self.framed(&view.intrinsics), k);
+        let centre = view.centre.map(|c| c / self.scale);
+        let frame = render::rasterise(&self.mesh, w * h, centre, &intrinsics, k);
+        Ok(self.resolve(&frame, colours))
+    }
+
+    /// The view's intrinsics, magnified about the image centre in crop mode.
+    fn framed(&self, k: &Intrinsics) -> Intrinsics {
+        if self.border == Border::Extend {
+            return *k;
+        }
+        let margin = self.stats.border_margin_px * k.fx / self.source.fx;
+        let (w, h) = (f64::from(k.width), f64::from(k.height));
+        let s = ((w + 2.0 * margin) / w).max((h + 2.0 * margin) / h);
+        Intrinsics {
+            fx: k.fx * s,
+            fy: k.fy * s,
+            cx: (k.cx - w / 2.0) * s + w / 2.0,
+            cy: (k.cy - h / 2.0) * s + h / 2.0,
+            ..*k
+        }
+    }
+
+    /// Averages each output pixel's subsamples, looking up every sample's colour.
+    fn resolve(&self, frame: &render::Frame, colours: &SrgbImage) -> Rendered {
+        let k = frame.factor;
+        let (ow, oh) = (frame.width / k, frame.height / k);
+        let data = colours.data();
+        let front_samples = self.stats.width * self.stats.height;
+        let mut image = SrgbImage::new(ow as u32, oh as u32);
+        let mut front_fraction = vec![0.0; ow * oh];
+        let mut hole_fraction = vec![0.0; ow * oh];
+        let weight = 1.0 / (k * k) as f32;
+        for y in 0..oh {
+            for x in 0..ow {
+                let (mut rgb, mut front, mut hole) = ([0.0f32; 3], 0.0, 0.0);
+                for sy in 0..k {
+                    for sx in 0..k {
+                        let i = (y * k + sy) * frame.width + x * k + sx;
+                        let colour = self.sample_colour(frame.sample[i], data, front_samples);
+                        for c in 0..3 {
+                            rgb[c] += colour[c] * weight;
+                        }
+                        match frame.origin[i] {
+                            Origin::Front => front += weight,
+                            Origin::Filled => hole += weight,
+                            Origin::Back => {}
+                        }
+                    }
+                }
+                image.put(x as u32, y as u32, rgb);
+                front_fraction[y * ow + x] = front;
+                hole_fraction[y * ow + x] = hole;
+            }
+        }
+        Rendered {
+            image,
+            front_fraction,
+            hole_fraction,
+        }
+    }
+}
+
+impl Ldi {
+    /// The colour of a rendered sample; black for [`render::EMPTY`] (a view that sees
+    /// none of the mesh, e.g. a camera far behind it or absurdly far to the side).
+    fn sample_colour(&self, sample: u32, data: &[f32], front_samples: usize) -> [f32; 3] {
+        if sample == render::EMPTY {
+            return [0.0; 3];
+        }
+        let s = sample as usize;
+        match &self.band_rgb {
+            Some(band) if s >= front_samples => band[s - front_samples],
+            _ => {
+                let from = 3 * self.mesh.samples[s].colour_from as usize;
+                [data[from], data[from + 1], data[from + 2]]
+            }
+        }
+    }
+}
+
+/// The power of two nearest the smallest positive depth (1 for a map without one):
+/// dividing by a power of two is exact, so a scene already in ordinary units renders
+/// bit for bit as without it.
+pub(crate) fn mesh_scale(depth: &[f32]) -> f64 {
+    let nearest = depth
+        .iter()
+        .copied()
+        .filter(|z| z.is_finite() && *z > 0.0)
+        .fold(f32::INFINITY, f32::min);
+    if !nearest.is_finite() {
+        return 1.0;
+    }
+    f64::from(nearest)
+        .log2()
+        .round()
+        .clamp(-120.0, 120.0)
+        .exp2()
+}
+
+fn supersampled(k: &Intrinsics, factor: usize) -> Intrinsics {
+    let s = factor as f64;
+    Intrinsics {
+        fx: k.fx * s,
+        fy: k.fy * s,
+        cx: k.cx * s,
+        cy: k.cy * s,
+        width: k.width * factor as u32,
+        height: k.height * factor as u32,
+    }
+}
+
+/// The LDI behind the [`Relocator`] interface: built in [`Relocator::prepare`], once
+/// per photo, and rendered per view.
+pub struct LdiRelocator {
+    pub config: LdiConfig,
+}
+
+impl LdiRelocator {
+    pub fn new(config: LdiConfig) -> Self {
+        Self { config }
+    }
+}
+
+impl Default for LdiRelocator {
+    fn default() -> Self {
+        Self::new(LdiConfig::default())
+    }
+}
+
+impl Relocator for LdiRelocator {
+    fn description(&self) -> String {
+        let c = &self.config;
+        format!(
+            "layered depth image: cut at {} relative disparity steps (contours >= {} px), \
+             background band inpainted by patch synthesis from the background side, \
+             band colours from the {}, {}x{} supersampling, border {}",
+            c.edge_threshold,
+            c.min_contour_px,
+            match c.band_colours {
+                BandColours::View => "view's image",
+                BandColours::Inpainted => "build image",
+            },
+            c.supersampling,
+            c.supersampling,
+            c.border
+        )
+    }
+
+    fn prepare<'a>(
+        &'a self,
+        colours: &SrgbImage,
+        depth: &DepthMap,
+        source: &Intrinsics,
+        reach: f64,
+    ) -> Result<Box<dyn PreparedRelocation + 'a>, RelocateError> {
+        Ok(Box::new(Ldi::build(
+            colours,
+            depth,
+            source,
+            &self.config,
+            reach,
+        )?))
+    }
+}
+
+impl PreparedRelocation for Ldi {
+    fn render(&self, colours: &SrgbImage, view: &ViewCamera) -> Result<SrgbImage, RelocateError> {
+        Ldi::render(self, colours, view)
+    }
+}

@@ -1,0 +1,149 @@
+//! Unit tests of `relocate`, beside it so that the module file holds the code only.
+
+use super::*;
+
+const W: u32 = 48;
+const H: u32 = 32;
+const FOCUS: f64 = 2.0;
+
+fn camera() -> Intrinsics {
+    Intrinsics::from_hfov(W, H, 60.0)
+}
+
+fn textured() -> SrgbImage {
+    let mut img = SrgbImage::new(W, H);
+    for y in 0..H {
+        for x in 0..W {
+            img.put(
+                x,
+                y,
+                [
+                    x as f32 / W as f32,
+                    y as f32 / H as f32,
+                    ((x * 7 + y * 3) % 5) as f32 / 4.0,
+                ],
+            );
+        }
+    }
+    img
+}
+
+fn view(tx: f64) -> ViewCamera {
+    ViewCamera::off_axis(&camera(), [tx, 0.0, 0.0], FOCUS).unwrap()
+}
+
+const RED: [f32; 3] = [1.0, 0.0, 0.0];
+const BLUE: [f32; 3] = [0.0, 0.0, 1.0];
+
+/// A red square at depth 1 in front of a blue wall at depth 4.
+fn square_scene() -> (SrgbImage, DepthMap) {
+    let mut img = SrgbImage::new(W, H);
+    let mut depth = vec![4.0f32; (W * H) as usize];
+    for y in 0..H {
+        for x in 0..W {
+            let inside = (18..30).contains(&x) && (10..22).contains(&y);
+            img.put(x, y, if inside { RED } else { BLUE });
+            if inside {
+                depth[(y * W + x) as usize] = 1.0;
+            }
+        }
+    }
+    (img, DepthMap::new(W as usize, H as usize, depth))
+}
+
+fn red_columns(img: &SrgbImage, y: u32) -> Vec<u32> {
+    (0..W).filter(|&x| img.get(x, y) == RED).collect()
+}
+
+#[test]
+fn plane_at_focus_is_unchanged_in_every_view() {
+    let img = textured();
+    let depth = DepthMap::new(W as usize, H as usize, vec![FOCUS as f32; (W * H) as usize]);
+    let views = [-0.3, -0.05, 0.0, 0.2].map(view).into_iter().chain([
+        ViewCamera::off_axis(&camera(), [0.1, -0.05, 0.3], FOCUS).unwrap(),
+        ViewCamera::off_axis(&camera(), [0.0, 0.0, -0.5], FOCUS).unwrap(),
+    ]);
+    for cam in views {
+        let out = MeshWarp::default()
+            .render(&img, &depth, &camera(), &cam)
+            .unwrap();
+        for (i, (a, b)) in out.data().iter().zip(img.data()).enumerate() {
+            assert!((a - b).abs() < 1e-5, "{:?} at {i}: {a} vs {b}", cam.centre);
+        }
+    }
+}
+
+#[test]
+fn near_square_moves_against_the_camera() {
+    let (img, depth) = square_scene();
+    let before = red_columns(&img, 16);
+    let right = MeshWarp::default()
+        .render(&img, &depth, &camera(), &view(0.1))
+        .unwrap();
+    let left = MeshWarp::default()
+        .render(&img, &depth, &camera(), &view(-0.1))
+        .unwrap();
+    let (r, l) = (red_columns(&right, 16), red_columns(&left, 16));
+    // Parallax of a point at depth 1 with the plane at 2: f · tx · (1/1 − 1/2).
+    let shift = camera().fx * 0.1 * 0.5;
+    assert!(shift > 2.0);
+    let mean = |v: &[u32]| v.iter().sum::<u32>() as f64 / v.len() as f64;
+    assert!((mean(&r) - (mean(&before) - shift)).abs() < 1.0, "{r:?}");
+    assert!((mean(&l) - (mean(&before) + shift)).abs() < 1.0, "{l:?}");
+    // The mesh spans pixel centres, so a cut-out object may lose up to one pixel.
+    assert!(
+        (before.len() - 1..=before.len()).contains(&r.len()),
+        "{r:?}"
+    );
+}
+
+#[test]
+fn disocclusions_are_filled_with_background() {
+    let (img, depth) = square_scene();
+    let out = MeshWarp::default()
+        .render(&img, &depth, &camera(), &view(0.15))
+        .unwrap();
+    let reds = red_columns(&out, 16);
+    let right_edge = *reds.last().unwrap();
+    // The square moved left: everything right of it, including what it covered, is wall.
+    assert!(right_edge < 29);
+    for x in right_edge + 1..W {
+        assert_eq!(out.get(x, 16), BLUE, "x={x}");
+    }
+    // No colour between red and blue: the edge triangles were cut, not stretched.
+    assert!(out.data().chunks(3).all(|p| p == RED || p == BLUE));
+}
+
+#[test]
+fn disocclusion_fill_continues_the_background_texture() {
+    let (mut img, depth) = square_scene();
+    let stripe = |x: u32| if x % 2 == 0 { BLUE } else { [0.0, 1.0, 0.0] };
+    for y in 0..H {
+        for x in 0..W {
+            if img.get(x, y) == BLUE {
+                img.put(x, y, stripe(x));
+            }
+        }
+    }
+    let out = MeshWarp::default()
+        .render(&img, &depth, &camera(), &view(0.15))
+        .unwrap();
+    let right_edge = *red_columns(&out, 16).last().unwrap();
+    let revealed: Vec<[f32; 3]> = (right_edge + 1..29).map(|x| out.get(x, 16)).collect();
+    assert!(revealed.len() >= 3, "{revealed:?}");
+    // Wall colours (stripes blended by the sub-pixel shift), never the square's red.
+    assert!(revealed.iter().all(|p| p[0] == 0.0), "{revealed:?}");
+    assert!(
+        revealed.windows(2).any(|w| w[0] != w[1]),
+        "smeared: {revealed:?}"
+    );
+}
+
+#[test]
+fn mismatched_sizes_are_an_error() {
+    let depth = DepthMap::new(4, 4, vec![1.0; 16]);
+    let err = MeshWarp::default()
+        .render(&SrgbImage::new(4, 3), &depth, &camera(), &view(0.0))
+        .unwrap_err();
+    assert!(matches!(err, RelocateError::SizeMismatch { .. }));
+}

@@ -1,0 +1,607 @@
+//! The paper's reshading network as a [`Reshader`]: the photo and its disparity go through
+//! the view-independent encoder once, the decoder runs per view with the view's camera,
+//! and the predicted residual (reshaded − input) is added to the full-resolution photo.
+//!
+//! Per-view cost options, each measured by the benchmark (`bench_reshade`):
+//! (a) `scale < 1` runs the network at a reduced working resolution and upsamples the
+//!     residual (highlights are smooth); (b) `key_views` runs the decoder for K views
+//!     and interpolates the residual between them; (c) `batch` puts several views in one
+//!     decoder call; `parallel_views` runs views on several threads at once.
+
+pub mod cli;
+mod keys;
+pub mod lobes;
+mod models;
+pub mod resample;
+
+use models::find_models;
+pub use models::{is_residual, manifests_where};
+
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::{Arc, Mutex};
+
+use crate::depth::DepthMap;
+use crate::engine::manifest::{self, ManifestError, Precision, Task, VerifiedModel};
+use crate::engine::{Engine, EngineError, ModelSource, Plan, Tensor};
+use crate::io::photo::SrgbImage;
+use crate::reshade::{PreparedPhoto, ReshadeError, Reshader};
+use crate::views::Intrinsics;
+
+#[derive(Debug, thiserror::Error)]
+pub enum NetError {
+    #[error(transparent)]
+    Manifest(#[from] ManifestError),
+    #[error(transparent)]
+    Engine(#[from] EngineError),
+    #[error("{path}: {problem}")]
+    Model { path: PathBuf, problem: String },
+    #[error("reshading input: {0}")]
+    Input(String),
+}
+
+impl From<NetError> for ReshadeError {
+    fn from(e: NetError) -> Self {
+        ReshadeError::Model(e.to_string())
+    }
+}
+
+/// How the per-view work is done; every choice other than the default trades fidelity
+/// or memory for time (docs/benchmarks.md, "Per-view cost options").
+#[derive(Clone, Debug, PartialEq)]
+pub struct NetOptions {
+    /// Working resolution as a fraction of the photo's, in (0, 1].
+    pub scale: f64,
+    /// Run the network for this many views and interpolate the rest (None: every view).
+    pub key_views: Option<usize>,
+    /// Views per decoder call.
+    pub batch: usize,
+    /// Views decoded at the same time on separate threads.
+    pub parallel_views: usize,
+    /// Camera offsets longer than this are shortened to it (None: the largest offset the
+    /// model was trained on, from its manifest).
+    pub max_offset: Option<f64>,
+}
+
+impl Default for NetOptions {
+    fn default() -> Self {
+        Self {
+            scale: 1.0,
+            key_views: None,
+            batch: 1,
+            parallel_views: 1,
+            max_offset: None,
+        }
+    }
+}
+
+impl NetOptions {
+    fn check(&self) -> Result<(), NetError> {
+        let bad = |m: String| Err(NetError::Input(m));
+        if !(self.scale > 0.0 && self.scale <= 1.0) {
+            return bad(format!("reshade scale {} is outside (0, 1]", self.scale));
+        }
+        if self.batch == 0 || self.parallel_views == 0 {
+            return bad("batch and parallel views must be at least 1".into());
+        }
+        if self.key_views.is_some_and(|k| k < 2) {
+            return bad("key views must be at least 2 (the two outermost views)".into());
+        }
+        Ok(())
+    }
+}
+
+enum Form {
+    Single(Box<VerifiedModel>),
+    Split {
+        encoder: Box<VerifiedModel>,
+        decoder: Box<VerifiedModel>,
+    },
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+enum Role {
+    Single,
+    Encoder,
+    Decoder,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+struct PlanKey {
+    role: Role,
+    width: usize,
+    height: usize,
+    batch: usize,
+}
+
+pub struct NetReshader {
+    form: Form,
+    engine: Arc<dyn Engine>,
+    options: NetOptions,
+    multiple: usize,
+    max_offset: f64,
+    plans: Mutex<HashMap<PlanKey, Arc<dyn Plan>>>,
+}
+
+impl NetReshader {
+    /// Loads the reshading model at `path`: a manifest (single graph, or either half of an
+    /// encoder/decoder pair, whose partner is found beside it) or a directory holding them.
+    pub fn load(
+        path: &Path,
+        precision: Precision,
+        engine: Arc<dyn Engine>,
+        options: NetOptions,
+    ) -> Result<Self, NetError> {
+        let form = find_models(path, precision)?;
+        Self::new(form, engine, options)
+    }
+
+    fn new(form: Form, engine: Arc<dyn Engine>, options: NetOptions) -> Result<Self, NetError> {
+        options.check()?;
+        let first = match &form {
+            Form::Single(m) => m,
+            Form::Split { encoder, decoder } => {
+                if encoder.manifest.size_multiple != decoder.manifest.size_multiple {
+                    return Err(manifest::field_error(
+                        &decoder.manifest_path,
+                        "size_multiple",
+                        "differs from the encoder's",
+                    )
+                    .into());
+                }
+                decoder
+            }
+        };
+        let trained = first
+            .manifest
+            .camera
+            .as_ref()
+            .map_or(f64::INFINITY, |c| c.training_offset_range[1]);
+        Ok(Self {
+            multiple: first.manifest.size_multiple as usize,
+            max_offset: options.max_offset.unwrap_or(trained),
+            form,
+            engine,
+            options,
+            plans: Mutex::new(HashMap::new()),
+        })
+    }
+
+    pub fn options(&self) -> &NetOptions {
+        &self.options
+    }
+
+    pub fn engine(&self) -> &dyn Engine {
+        self.engine.as_ref()
+    }
+
+    /// Whether the encoder runs separately from the decoder.
+    pub fn is_split(&self) -> bool {
+        matches!(self.form, Form::Split { .. })
+    }
+
+    fn model(&self, role: Role) -> &VerifiedModel {
+        match (&self.form, role) {
+            (Form::Single(m), _) => m,
+            (Form::Split { encoder, .. }, Role::Encoder) => encoder,
+            (Form::Split { decoder, .. }, _) => decoder,
+        }
+    }
+
+    /// The plan for `key`, optimised on first use and kept for later photos.
+    fn plan(&self, key: PlanKey, shapes: &[(&str, Vec<usize>)]) -> Result<Arc<dyn Plan>, NetError> {
+        let mut plans = self.plans.lock().unwrap_or_else(|p| p.into_inner());
+        if let Some(plan) = plans.get(&key) {
+            return Ok(plan.clone());
+        }
+        let model = self.model(key.role);
+        let task = model.manifest.task;
+        let outputs = manifest::signature(task).expect("reshade task").outputs;
+        let started = std::time::Instant::now();
+        let plan = self.engine.plan(
+            ModelSource {
+                path: &model.model_path,
+                bytes: &model.bytes,
+                precision: model.manifest.precision,
+            },
+            shapes,
+            outputs,
+        )?;
+        log::info!(
+            "{}: {} plan for {}x{} batch {} ready in {:.0} ms",
+            model.manifest.name,
+            self.engine.name(),
+            key.width,
+            key.height,
+            key.batch,
+            started.elapsed().as_secs_f64() * 1e3
+        );
+        plans.insert(key, plan.clone());
+        Ok(plan)
+    }
+
+    /// Runs the view-independent part for one photo (the encoder, in the split form).
+    pub fn prepare_photo<'a>(
+        &'a self,
+        image: &'a SrgbImage,
+        depth: &DepthMap,
+    ) -> Result<NetPhoto<'a>, NetError> {
+        let (w, h) = (image.width() as usize, image.height() as usize);
+        if depth.width() != w || depth.height() != h {
+            return Err(NetError::Input(format!(
+                "depth is {}x{} but the photo is {w}x{h}",
+                depth.width(),
+                depth.height()
+            )));
+        }
+        let ww = ((w as f64 * self.options.scale).round() as usize).max(1);
+        let wh = ((h as f64 * self.options.scale).round() as usize).max(1);
+        let (pw, ph) = (round_up(ww, self.multiple), round_up(wh, self.multiple));
+        let full = planar(image);
+        let disparity: Vec<f32> = depth.data().iter().map(|&z| disparity(z)).collect();
+        let work = resample::resize(&full, w, h, ww, wh);
+        let work_disparity = resample::resize(&disparity, w, h, ww, wh);
+        let image_t = Tensor::new(
+            vec![1, 3, ph, pw],
+            resample::pad_replicate(&work, ww, wh, pw, ph),
+        );
+        let disparity_t = Tensor::new(
+            vec![1, 1, ph, pw],
+            resample::pad_replicate(&work_disparity, ww, wh, pw, ph),
+        );
+        let encoded = if self.is_split() {
+            let key = PlanKey {
+                role: Role::Encoder,
+                width: pw,
+                height: ph,
+                batch: 1,
+            };
+            let plan = self.plan(
+                key,
+                &[
+                    ("image", image_t.shape.clone()),
+                    ("disparity", disparity_t.shape.clone()),
+                ],
+            )?;
+            let outputs = plan.run(&[("image", &image_t), ("disparity", &disparity_t)])?;
+            let names = manifest::signature(Task::ReshadeEncoder)
+                .expect("encoder")
+                .outputs;
+            names.iter().map(|n| n.to_string()).zip(outputs).collect()
+        } else {
+            Vec::new()
+        };
+        Ok(NetPhoto {
+            net: self,
+            image,
+            full,
+            work,
+            size: (w, h),
+            work_size: (ww, wh),
+            padded: (pw, ph),
+            image_t,
+            disparity_t,
+            encoded,
+            clamped: AtomicUsize::new(0),
+        })
+    }
+
+    fn limit_offset(&self, centre: [f64; 3]) -> ([f32; 3], bool) {
+        let len = centre.iter().map(|c| c * c).sum::<f64>().sqrt();
+        let k = if len > self.max_offset {
+            self.max_offset / len
+        } else {
+            1.0
+        };
+        (centre.map(|c| (c * k) as f32), k < 1.0)
+    }
+}
+
+impl Reshader for NetReshader {
+    fn description(&self) -> String {
+        let m = &self.model(Role::Decoder).manifest;
+        let o = &self.options;
+        // The weights' checksums, not only name and version: a retrained model keeps its
+        // name, and the gallery's done-markers must see the change.
+        let short = |sha: &str| sha.trim().chars().take(12).collect::<String>();
+        let weights = if self.is_split() {
+            let e = &self.model(Role::Encoder).manifest;
+            format!(
+                "encoder {} + decoder {}",
+                short(&e.sha256),
+                short(&m.sha256)
+            )
+        } else {
+            format!("single graph {}", short(&m.sha256))
+        };
+        format!(
+            "{} {} ({}, head residual, {weights}, engine {} x{} threads, scale {}, key views {}, batch {}, parallel views {})",
+            m.name,
+            m.version,
+            m.precision,
+            self.engine.name(),
+            self.engine.threads(),
+            o.scale,
+            o.key_views.map_or("all".into(), |k| k.to_string()),
+            o.batch,
+            o.parallel_views,
+        )
+    }
+
+    fn prepare<'a>(
+        &'a self,
+        image: &'a SrgbImage,
+        depth: &'a DepthMap,
+        _camera: &Intrinsics,
+    ) -> Result<Box<dyn PreparedPhoto + 'a>, ReshadeError> {
+        // The residual head never sees the camera's geometry, only offsets.
+        Ok(Box::new(self.prepare_photo(image, depth)?))
+    }
+}
+
+/// Working-resolution residuals of one network call, one per view.
+type BatchResult = Result<Vec<Vec<f32>>, NetError>;
+
+/// A photo after the encoder: ready to be reshaded for any number of views.
+pub struct NetPhoto<'a> {
+    net: &'a NetReshader,
+    image: &'a SrgbImage,
+    full: Vec<f32>,
+    work: Vec<f32>,
+    size: (usize, usize),
+    work_size: (usize, usize),
+    padded: (usize, usize),
+    image_t: Tensor,
+    disparity_t: Tensor,
+    encoded: Vec<(String, Tensor)>,
+    clamped: AtomicUsize,
+}
+
+impl NetPhoto<'_> {
+    /// The photo reshaded for every camera in `centres`, using the options' key views,
+    /// batching and parallelism.
+    pub fn reshade_views(&self, centres: &[[f64; 3]]) -> Result<Vec<SrgbImage>, NetError> {
+        let sources = keys::plan(centres, self.net.options.key_views.unwrap_or(usize::MAX));
+        let key_views: Vec<usize> = (0..centres.len())
+            .filter(|&v| sources[v] == keys::Source::Key)
+            .collect();
+        let key_centres: Vec<[f64; 3]> = key_views.iter().map(|&v| centres[v]).collect();
+        let residuals = self.residuals(&key_centres)?;
+        let slot = |v: usize| key_views.iter().position(|&k| k == v).expect("a key view");
+        let clamped = self.clamped.swap(0, Ordering::Relaxed);
+        if clamped > 0 {
+            log::info!(
+                "{clamped} of {} reshaded views asked for camera offsets beyond {:.3} (the trained range); reshaded as at that distance",
+                key_centres.len(),
+                self.net.max_offset
+            );
+        }
+        Ok(sources
+            .iter()
+            .enumerate()
+            .map(|(v, source)| match *source {
+                keys::Source::Key => self.compose(&residuals[slot(v)]),
+                keys::Source::Blend { a, b, t } => {
+                    let (ra, rb) = (&residuals[slot(a)], &residuals[slot(b)]);
+                    let blend: Vec<f32> = ra.iter().zip(rb).map(|(x, y)| x + (y - x) * t).collect();
+                    self.compose(&blend)
+                }
+            })
+            .collect())
+    }
+
+    /// Working-resolution residuals for `centres`, in order.
+    fn residuals(&self, centres: &[[f64; 3]]) -> Result<Vec<Vec<f32>>, NetError> {
+        let chunks: Vec<&[[f64; 3]]> = centres.chunks(self.net.options.batch).collect();
+        let workers = self.net.options.parallel_views.min(chunks.len());
+        if workers <= 1 {
+            let mut out = Vec::with_capacity(centres.len());
+            for chunk in chunks {
+                out.extend(self.run_batch(chunk)?);
+            }
+            return Ok(out);
+        }
+        let next = AtomicUsize::new(0);
+        let results: Vec<Mutex<Option<BatchResult>>> =
+            chunks.iter().map(|_| Mutex::new(None)).collect();
+        std::thread::scope(|s| {
+            for _ in 0..workers {
+                s.spawn(|| loop {
+                    let i = next.fetch_add(1, Ordering::Relaxed);
+                    let Some(chunk) = chunks.get(i) else { break };
+                    *results[i].lock().unwrap_or_else(|p| p.into_inner()) =
+                        Some(self.run_batch(chunk));
+                });
+            }
+        });
+        let mut out = Vec::with_capacity(centres.len());
+        for r in results {
+            out.extend(
+                r.into_inner()
+                    .unwrap_or_else(|p| p.into_inner())
+                    .expect("every chunk ran")?,
+            );
+        }
+        Ok(out)
+    }
+
+    /// One network call for `centres.len()` views; their residuals at working resolution.
+    fn run_batch(&self, centres: &[[f64; 3]]) -> Result<Vec<Vec<f32>>, NetError> {
+        let b = centres.len();
+        let mut camera = Vec::with_capacity(3 * b);
+        for &c in centres {
+            let (limited, was_clamped) = self.net.limit_offset(c);
+            if was_clamped {
+                self.clamped.fetch_add(1, Ordering::Relaxed);
+            }
+            camera.extend(limited);
+        }
+        let camera = Tensor::new(vec![b, 3], camera);
+        let inputs: Vec<(&str, &Tensor)> = if self.net.is_split() {
+            std::iter::once(("image", &self.image_t))
+                .chain(self.encoded.iter().map(|(n, t)| (n.as_str(), t)))
+                .collect()
+        } else {
+            vec![("image", &self.image_t), ("disparity", &self.disparity_t)]
+        };
+        // Batched plans take every input with the batch's size.
+        let owned: Vec<(&str, Tensor)> = if b > 1 {
+            inputs.iter().map(|(n, t)| (*n, repeat(t, b))).collect()
+        } else {
+            Vec::new()
+        };
+        let mut feed: Vec<(&str, &Tensor)> = if b > 1 {
+            owned.iter().map(|(n, t)| (*n, t)).collect()
+        } else {
+            inputs
+        };
+        feed.push(("camera", &camera));
+        let (pw, ph) = self.padded;
+        let role = if self.net.is_split() {
+            Role::Decoder
+        } else {
+            Role::Single
+        };
+        let key = PlanKey {
+            role,
+            width: pw,
+            height: ph,
+            batch: b,
+        };
+        let shapes: Vec<(&str, Vec<usize>)> =
+            feed.iter().map(|(n, t)| (*n, t.shape.clone())).collect();
+        let plan = self.net.plan(key, &shapes)?;
+        let out = plan.run(&feed)?.remove(0);
+        let expected = [b, 3, ph, pw];
+        if out.shape != expected {
+            return Err(NetError::Model {
+                path: self.net.model(role).model_path.clone(),
+                problem: format!("output is {:?}; expected {expected:?}", out.shape),
+            });
+        }
+        let (ww, wh) = self.work_size;
+        Ok(out
+            .data
+            .chunks_exact(3 * pw * ph)
+            .map(|item| {
+                let mut r = resample::crop(item, pw, ph, ww, wh);
+                for (v, x) in r.iter_mut().zip(&self.work) {
+                    *v -= x;
+                }
+                r
+            })
+            .collect())
+    }
+
+    /// The full-resolution photo plus a working-resolution residual, clamped to [0, 1].
+    fn compose(&self, residual: &[f32]) -> SrgbImage {
+        let (w, h) = self.size;
+        let (ww, wh) = self.work_size;
+        let up;
+        let residual = if (ww, wh) == (w, h) {
+            residual
+        } else {
+            up = resample::resize(residual, ww, wh, w, h);
+            &up
+        };
+        let plane = w * h;
+        let mut rgb = vec![0.0f32; 3 * plane];
+        for (i, px) in rgb.chunks_exact_mut(3).enumerate() {
+            for (c, v) in px.iter_mut().enumerate() {
+                *v = (self.full[c * plane + i] + residual[c * plane + i]).clamp(0.0, 1.0);
+            }
+        }
+        let buffer =
+            image::Rgb32FImage::from_raw(w as u32, h as u32, rgb).expect("buffer matches size");
+        SrgbImage::from_rgb32f(buffer)
+    }
+
+    /// Milliseconds per operator type of one decoder run (the single graph's, in that
+    /// form) for a camera at `centre`, as tract executes it.
+    pub fn profile(
+        &self,
+        engine: &crate::engine::tract::TractEngine,
+        centre: [f64; 3],
+    ) -> Result<Vec<(String, f64)>, NetError> {
+        let camera = Tensor::new(vec![1, 3], self.net.limit_offset(centre).0.to_vec());
+        let mut feed: Vec<(&str, &Tensor)> = if self.net.is_split() {
+            std::iter::once(("image", &self.image_t))
+                .chain(self.encoded.iter().map(|(n, t)| (n.as_str(), t)))
+                .collect()
+        } else {
+            vec![("image", &self.image_t), ("disparity", &self.disparity_t)]
+        };
+        feed.push(("camera", &camera));
+        let model = self.net.model(if self.net.is_split() {
+            Role::Decoder
+        } else {
+            Role::Single
+        });
+        let source = ModelSource {
+            path: &model.model_path,
+            bytes: &model.bytes,
+            precision: model.manifest.precision,
+        };
+        let outputs = manifest::signature(model.manifest.task)
+            .expect("reshade task")
+            .outputs;
+        Ok(engine.profile(source, &feed, outputs)?)
+    }
+
+    /// The input photo this was prepared from.
+    pub fn photo(&self) -> &SrgbImage {
+        self.image
+    }
+
+    /// The padded working-resolution size the network runs at.
+    pub fn network_size(&self) -> (usize, usize) {
+        self.padded
+    }
+}
+
+impl PreparedPhoto for NetPhoto<'_> {
+    fn reshade(&self, centre: [f64; 3]) -> Result<SrgbImage, ReshadeError> {
+        Ok(self.reshade_views(&[centre])?.remove(0))
+    }
+
+    fn reshade_all(&self, centres: &[[f64; 3]]) -> Result<Vec<SrgbImage>, ReshadeError> {
+        Ok(self.reshade_views(centres)?)
+    }
+}
+
+/// The network's disparity input: `clamp(0.25 / depth, 0, 1)`; depth that is missing
+/// (zero, negative or not a number) counts as infinitely far.
+pub fn disparity(depth: f32) -> f32 {
+    if depth > 0.0 {
+        (0.25 / depth).clamp(0.0, 1.0)
+    } else {
+        0.0
+    }
+}
+
+fn round_up(n: usize, multiple: usize) -> usize {
+    n.div_ceil(multiple) * multiple
+}
+
+/// Interleaved RGB to three planes.
+fn planar(image: &SrgbImage) -> Vec<f32> {
+    let plane = image.width() as usize * image.height() as usize;
+    let mut out = vec![0.0f32; 3 * plane];
+    for (i, px) in image.data().chunks_exact(3).enumerate() {
+        for c in 0..3 {
+            out[c * plane + i] = px[c];
+        }
+    }
+    out
+}
+
+/// `t` (batch 1) repeated `b` times along the batch axis.
+fn repeat(t: &Tensor, b: usize) -> Tensor {
+    let mut shape = t.shape.clone();
+    shape[0] = b;
+    Tensor::new(shape, t.data.repeat(b))
+}
+
+#[cfg(test)]
+mod tests;

@@ -652,7 +652,8 @@ fn check_aspect(path: &Path, raw: &RawMap, photo_w: u32, photo_h: u32) -> Result
     Ok(())
 }
 
-fn percentile(values: &[f32], q: f64) -> f32 {
+/// The value at quantile `q` (0 to 1, nearest rank) of `values`, which must not be empty.
+pub(crate) fn percentile(values: &[f32], q: f64) -> f32 {
     let mut sorted = values.to_vec();
     let k = ((sorted.len() - 1) as f64 * q.clamp(0.0, 1.0)).round() as usize;
     let (_, v, _) = sorted.select_nth_unstable_by(k, f32::total_cmp);

@@ -414,12 +414,5 @@ impl DepthEstimator {
     }
 }
 
-fn percentile(values: &[f32], q: f64) -> f32 {
-    let mut sorted = values.to_vec();
-    let k = ((sorted.len() - 1) as f64 * q.clamp(0.0, 1.0)).round() as usize;
-    let (_, v, _) = sorted.select_nth_unstable_by(k, f32::total_cmp);
-    *v
-}
-
 #[cfg(test)]
 mod tests;

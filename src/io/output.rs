@@ -238,27 +238,34 @@ pub fn encode_png_with_text(
 /// Writes `bytes` to `path` through a temporary file in the same directory and a rename,
 /// so readers see either the old file or the complete new one.
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), OutputError> {
-    let io_err = |source| OutputError::Io {
+    if path.file_name().is_none() {
+        return Err(OutputError::Io {
+            path: path.into(),
+            source: std::io::Error::new(std::io::ErrorKind::InvalidInput, "path has no file name"),
+        });
+    }
+    replace_file(path, bytes).map_err(|source| OutputError::Io {
         path: path.into(),
         source,
-    };
-    let dir = parent_dir(path);
-    let name = path.file_name().ok_or_else(|| {
-        io_err(std::io::Error::new(
-            std::io::ErrorKind::InvalidInput,
-            "path has no file name",
-        ))
-    })?;
-    let tmp = dir.join(format!(
-        ".{}.tmp-{}",
-        name.to_string_lossy(),
-        std::process::id()
-    ));
+    })
+}
+
+/// [`write_atomic`] for callers with their own error type: the bare I/O error.
+pub fn replace_file(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
+    let tmp = temp_name(path);
     let result = write_and_sync(&tmp, bytes).and_then(|()| fs::rename(&tmp, path));
     if result.is_err() {
         let _ = fs::remove_file(&tmp);
     }
-    result.map_err(io_err)
+    result
+}
+
+/// A hidden name beside `path` for writing it before the rename that publishes it.
+pub fn temp_name(path: &Path) -> PathBuf {
+    let name = path
+        .file_name()
+        .map_or_else(|| "out".into(), |n| n.to_string_lossy().into_owned());
+    path.with_file_name(format!(".{name}.tmp-{}", std::process::id()))
 }
 
 fn write_and_sync(path: &Path, bytes: &[u8]) -> std::io::Result<()> {

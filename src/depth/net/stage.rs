@@ -12,7 +12,8 @@ use crate::engine::manifest::Precision;
 use crate::io::record::FileRecord;
 use crate::reshade::net::resample;
 
-use super::{percentile, DepthNet, DepthNetError, OutputKind};
+use super::{DepthNet, DepthNetError, OutputKind};
+use crate::depth::percentile;
 
 /// The mapping from relative disparity to scene depth: the robust near end of the scene
 /// (the 98th disparity percentile) lands at `near`, the robust far end (2nd percentile)

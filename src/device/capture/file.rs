@@ -263,7 +263,7 @@ impl FrameWriter {
         height: u32,
     ) -> Result<Self, CaptureError> {
         check_frame_size(format, width, height).map_err(|reason| bad(path, &reason))?;
-        let tmp = crate::device::display::temp_name(path);
+        let tmp = crate::io::output::temp_name(path);
         let io_err = |source| CaptureError::Io {
             path: path.into(),
             source,

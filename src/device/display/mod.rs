@@ -86,7 +86,8 @@ impl FrameSink for PngSink {
                 path: path.clone(),
                 source,
             })?;
-        write_atomic(&path, &bytes).map_err(|source| DisplayError::Write { path, source })?;
+        crate::io::output::replace_file(&path, &bytes)
+            .map_err(|source| DisplayError::Write { path, source })?;
         self.next += 1;
         Ok(())
     }
@@ -121,28 +122,6 @@ pub fn open_sink(spec: &str, png_dir: &Path) -> Result<Box<dyn FrameSink>, Displ
         None => FramebufferSink::open(path)?,
     };
     Ok(Box::new(sink))
-}
-
-/// A hidden name beside `path` for writing it before the rename that publishes it.
-pub fn temp_name(path: &Path) -> PathBuf {
-    let name = path
-        .file_name()
-        .map_or_else(|| "out".into(), |n| n.to_string_lossy().into_owned());
-    path.with_file_name(format!(".{name}.tmp-{}", std::process::id()))
-}
-
-/// Writes through a temporary file and a rename: readers see the old file or the
-/// complete new one.
-pub fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
-    use std::io::Write;
-    let tmp = temp_name(path);
-    let result = std::fs::File::create(&tmp)
-        .and_then(|mut f| f.write_all(bytes).and_then(|()| f.sync_all()))
-        .and_then(|()| std::fs::rename(&tmp, path));
-    if result.is_err() {
-        let _ = std::fs::remove_file(&tmp);
-    }
-    result
 }
 
 #[cfg(test)]

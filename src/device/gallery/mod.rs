@@ -389,7 +389,7 @@ fn publish_marker(
         .map(|p| p.strip_prefix(out_dir).unwrap_or(p).to_path_buf())
         .collect();
     let json = serde_json::to_vec_pretty(&marker).expect("marker serialises");
-    crate::device::display::write_atomic(marker_path, &json)
+    crate::io::output::replace_file(marker_path, &json)
         .map_err(|e| format!("cannot write {}: {e}", marker_path.display()))?;
     Ok(report)
 }

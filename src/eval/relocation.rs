@@ -491,7 +491,7 @@ fn region_score(a: &SrgbImage, b: &SrgbImage, ssim: &[f32], mask: &[bool]) -> Sc
     }
     let mse = (se / (3 * pixels) as f64).max(1e-12);
     Score {
-        psnr: Some(-10.0 * mse.log10()),
+        psnr: Some(super::stats::psnr_from_mse(mse)),
         ssim: Some(ss / pixels as f64),
         pixels,
     }

@@ -202,11 +202,7 @@ fn psnr(a: &SrgbImage, b: &SrgbImage) -> f64 {
         .map(|(x, y)| f64::from(x - y).powi(2))
         .sum::<f64>()
         / a.data().len() as f64;
-    if mse == 0.0 {
-        f64::INFINITY
-    } else {
-        10.0 * (1.0 / mse).log10()
-    }
+    super::stats::psnr_from_mse(mse)
 }
 
 /// Mean PSNR over views (identical views count as 99 dB so that the mean stays finite).

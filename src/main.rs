@@ -258,9 +258,6 @@ struct RenderArgs {
     /// The two views of sbs.png, as LEFT,RIGHT [default: outermost].
     #[arg(long, value_parser = parse_pair)]
     sbs_pair: Option<(usize, usize)>,
-    /// Write files only, no display (the default; display output comes later).
-    #[arg(long, default_value_t = true)]
-    headless: bool,
     /// Output directory.
     #[arg(long)]
     out: PathBuf,

@@ -235,7 +235,7 @@ fn manifest_path_for(path: &Path) -> Result<PathBuf, DepthNetError> {
     Err(DepthNetError::Model {
         path: path.to_owned(),
         problem: format!(
-            "has no manifest {} beside it: write one (notes: depth-readme.md) saying how to \
+            "has no manifest {} beside it: write one (schema: models/MANIFEST.md) saying how to \
              feed the model and what its output means",
             manifest.display()
         ),

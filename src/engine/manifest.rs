@@ -1,6 +1,6 @@
 //! Model manifests (`models/<dir>/<name>.json` beside `<name>.onnx`): what a model file
 //! claims to be, checked against what the runtime is about to feed it before any tensor
-//! is allocated. Schema: `reshader-manifest/1` (notes/manifest.md).
+//! is allocated. Schema: `reshader-manifest/1` (models/MANIFEST.md).
 
 use std::fmt;
 use std::path::{Path, PathBuf};

@@ -166,6 +166,11 @@ def _offset(value, where: str) -> np.ndarray:
     return offset
 
 
+def _check_size(path: Path, arr: np.ndarray, shape: tuple[int, int]) -> None:
+    if arr.shape[:2] != shape:
+        raise DatasetError(f"{path}: size {arr.shape[:2]} differs from input.exr {shape}")
+
+
 def _load_extra(folder: Path, meta: dict, shape: tuple[int, int]) -> tuple[Target, ...]:
     entries = meta.get("extra_targets", [])
     if not isinstance(entries, list):
@@ -181,10 +186,7 @@ def _load_extra(folder: Path, meta: dict, shape: tuple[int, int]) -> tuple[Targe
         image = read_exr(folder / image_name, 3)
         mask = read_mask(folder / mask_name)
         for name, arr in ((image_name, image), (mask_name, mask)):
-            if arr.shape[:2] != shape:
-                raise DatasetError(
-                    f"{folder / name}: size {arr.shape[:2]} differs from input.exr {shape}"
-                )
+            _check_size(folder / name, arr, shape)
         out.append(Target(to_half(image), mask, offset))
     return tuple(out)
 
@@ -192,13 +194,12 @@ def _load_extra(folder: Path, meta: dict, shape: tuple[int, int]) -> tuple[Targe
 def load_example(folder: Path) -> Example:
     try:
         meta = json.loads((folder / "meta.json").read_text())
-        offset = np.asarray(meta["novel_offset"], dtype=np.float32)
+        raw_offset = meta["novel_offset"]
     except (OSError, ValueError, KeyError, TypeError) as err:
         raise DatasetError(
             f"{folder / 'meta.json'}: unreadable or no novel_offset ({err})"
         ) from err
-    if offset.shape != (3,) or not np.all(np.isfinite(offset)):
-        raise DatasetError(f"{folder / 'meta.json'}: novel_offset must be 3 finite numbers")
+    offset = _offset(raw_offset, f"{folder / 'meta.json'}: novel_offset")
     try:
         cam = meta["input_camera"]
         intrinsics = tuple(float(cam[k]) for k in ("fx", "fy", "cx", "cy"))
@@ -212,10 +213,7 @@ def load_example(folder: Path) -> Example:
     mask = read_mask(folder / "mask.png")
     shape = image.shape[:2]
     for name, arr in (("reshaded.exr", reshaded), ("depth.exr", depth), ("mask.png", mask)):
-        if arr.shape[:2] != shape:
-            raise DatasetError(
-                f"{folder / name}: size {arr.shape[:2]} differs from input.exr {shape}"
-            )
+        _check_size(folder / name, arr, shape)
     extra = _load_extra(folder, meta, shape)
     scene = scene_name(meta)
     return Example(

@@ -5,7 +5,8 @@ use std::path::PathBuf;
 
 use reshader::engine::manifest::Precision;
 use reshader::eval::bench::report::{self, Case, NaiveRow, PeerRow, Report, StageRow, Stat};
-use reshader::eval::bench::{self as bench, BenchArgs, ModelChoice};
+use reshader::eval::bench::{self as bench, BenchConfig, ModelChoice};
+use reshader::reshade::net::choice::ReshadeConfig;
 
 fn stat(median: f64) -> Stat {
     Stat {
@@ -173,45 +174,29 @@ fn compare_reports_the_change_per_stage() {
     );
 }
 
-/// `reshader bench` options as the CLI parses them, with `extra` appended.
-fn parse_args(extra: &[&str]) -> BenchArgs {
-    #[derive(clap::Parser)]
-    struct Cli {
-        #[command(flatten)]
-        bench: BenchArgs,
-    }
-    let mut argv = vec!["bench"];
-    argv.extend_from_slice(extra);
-    <Cli as clap::Parser>::try_parse_from(argv).unwrap().bench
-}
-
-fn tiny_args() -> BenchArgs {
+/// A small, quick benchmark: the fixture model, a 96x64 synthetic photo, one board.
+fn tiny_args() -> BenchConfig {
     let root = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
-    let model = root.join("models/fixtures");
-    let photo = root.join("examples/pumpkin/pumpkin.jpg");
-    parse_args(&[
-        "--model",
-        model.to_str().unwrap(),
-        "--precision",
-        "int8",
-        "--photo",
-        photo.to_str().unwrap(),
-        "--synthetic",
-        "96x64",
-        "--boards",
-        "generic-8view",
-        "--runs",
-        "1",
-        "--threads",
-        "1",
-        "--no-peer",
-        "--no-naive",
-    ])
+    BenchConfig {
+        reshade: ReshadeConfig {
+            model: Some(root.join("models/fixtures")),
+            precision: Some(Precision::Int8),
+            ..ReshadeConfig::default()
+        },
+        photo: root.join("examples/pumpkin/pumpkin.jpg"),
+        synthetic: (96, 64),
+        boards: vec!["generic-8view".into()],
+        runs: 1,
+        threads: 1,
+        no_peer: true,
+        no_naive: true,
+        ..BenchConfig::default()
+    }
 }
 
 #[test]
-fn the_cli_defaults_are_the_issue_s_cases() {
-    let args = parse_args(&[]);
+fn the_defaults_are_the_issue_s_cases() {
+    let args = BenchConfig::default();
     assert_eq!(
         args.boards,
         [
@@ -274,7 +259,10 @@ fn bad_options_fail_before_measuring() {
     assert!(bench::run(&args, "test").is_err());
     let mut args = tiny_args();
     args.compare = Some(PathBuf::from("/nonexistent/previous.json"));
-    let err = bench::main(&args, "test").err().unwrap().to_string();
+    let err = bench::run_and_write(&args, "test")
+        .err()
+        .unwrap()
+        .to_string();
     assert!(err.contains("/nonexistent/previous.json"), "{err}");
 }
 
@@ -322,7 +310,7 @@ fn the_reshade_bench_reports_the_lobe_head_s_cost_per_view() {
 #[test]
 fn reshader_bench_times_the_lobe_head_in_the_reshading_rows() {
     let mut args = tiny_args();
-    args.reshade.head = Some(reshader::reshade::net::cli::Head::Lobes);
+    args.reshade.head = Some(reshader::reshade::net::choice::Head::Lobes);
     args.reshade.precision = Some(Precision::Fp32);
     let r = bench::run(&args, "test").unwrap();
     assert!(

@@ -216,7 +216,8 @@ fn graph_names_must_match_the_manifest() {
 
 mod lobes {
     use super::*;
-    use reshader::reshade::net::cli::ReshadeArgs;
+    use reshader::io::keyword::Keyword;
+    use reshader::reshade::net::choice::{Head, ReshadeConfig};
     use reshader::reshade::net::lobes::LobeReshader;
     use reshader::views::Intrinsics;
 
@@ -305,16 +306,18 @@ mod lobes {
         );
     }
 
-    /// `--model`, `--precision`, `--head` as the CLI parses them.
-    fn args(extra: &[&str]) -> ReshadeArgs {
-        #[derive(clap::Parser)]
-        struct Cli {
-            #[command(flatten)]
-            reshade: ReshadeArgs,
+    /// The reshading settings `--model`, `--precision` and `--head` ask for.
+    fn args(flags: &[&str]) -> ReshadeConfig {
+        let mut config = ReshadeConfig::default();
+        for pair in flags.chunks(2) {
+            match pair {
+                ["--model", v] => config.model = Some(PathBuf::from(v)),
+                ["--precision", v] => config.precision = Some(v.parse().unwrap()),
+                ["--head", v] => config.head = Head::from_keyword(v),
+                _ => panic!("not a reshading flag: {pair:?}"),
+            }
         }
-        let mut argv = vec!["reshader"];
-        argv.extend_from_slice(extra);
-        <Cli as clap::Parser>::try_parse_from(argv).unwrap().reshade
+        config
     }
 
     fn description(extra: &[&str]) -> Result<String, String> {

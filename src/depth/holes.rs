@@ -14,7 +14,7 @@ use crate::depth::DepthKind;
 use crate::io::photo::SrgbImage;
 
 /// What to do with holes in a depth file.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum HolePolicy {
     /// Refuse the file, naming the holes.
@@ -26,15 +26,12 @@ pub enum HolePolicy {
     Fill,
 }
 
-impl HolePolicy {
-    /// The option's value, as the command line spells it.
-    pub fn name(self) -> &'static str {
-        match self {
-            Self::Refuse => "refuse",
-            Self::Far => "far",
-            Self::Fill => "fill",
-        }
-    }
+impl crate::io::keyword::Keyword for HolePolicy {
+    const ALL: &'static [(Self, &'static str)] = &[
+        (Self::Refuse, "refuse"),
+        (Self::Far, "far"),
+        (Self::Fill, "fill"),
+    ];
 }
 
 /// The holes of a map and what they are, for messages and run.json.

@@ -132,13 +132,18 @@ pub enum DepthError {
 }
 
 /// How the numbers in a depth file are to be read.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum DepthKind {
     /// Distance along the optical axis, in scene units.
     Depth,
     /// Relative disparity (larger = nearer), affine-ambiguous.
     Disparity,
+}
+
+impl crate::io::keyword::Keyword for DepthKind {
+    const ALL: &'static [(Self, &'static str)] =
+        &[(Self::Depth, "depth"), (Self::Disparity, "disparity")];
 }
 
 /// Scene depth per pixel, rows top to bottom.
@@ -621,7 +626,7 @@ fn treat_holes(
         holes.count(),
         holes.describe(),
         holes.fraction() * 100.0,
-        policy.name()
+        crate::io::keyword::Keyword::keyword(policy)
     );
     Ok(holes.fraction())
 }

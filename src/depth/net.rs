@@ -17,11 +17,12 @@
 //! order (`rgb`/`bgr`) and an optional per-channel mean/std. A model that normalises
 //! inside its graph must say `mean: null` — the runtime would otherwise normalise twice.
 
-pub mod cli;
+mod file;
 mod resize;
 mod spec;
 mod stage;
 
+pub use file::{check_depth_file, write_depth_file, DepthFileError};
 pub use resize::area_resize;
 pub use spec::*;
 pub use stage::*;
@@ -125,15 +126,14 @@ impl DepthNet {
         })
     }
 
-    /// The shipped model at `precision`, found under [`DEFAULT_MODEL_DIR`] in the working
-    /// directory, `$RESHADER_DEPTH_MODELS`, or the source tree.
+    /// The shipped model at `precision`, found in `$RESHADER_DEPTH_MODELS`, else in
+    /// `models/depth` where [`crate::engine::locate::model_dirs`] looks.
     pub fn shipped(precision: Precision, engine: Arc<dyn Engine>) -> Result<Self, DepthNetError> {
         let file = format!("{DEFAULT_MODEL}-{precision}.json");
-        let mut dirs = vec![PathBuf::from(DEFAULT_MODEL_DIR)];
+        let mut dirs = crate::engine::locate::model_dirs("depth");
         if let Some(dir) = std::env::var_os("RESHADER_DEPTH_MODELS") {
             dirs.insert(0, PathBuf::from(dir));
         }
-        dirs.push(Path::new(env!("CARGO_MANIFEST_DIR")).join(DEFAULT_MODEL_DIR));
         let candidates: Vec<PathBuf> = dirs.iter().map(|d| d.join(&file)).collect();
         match candidates.iter().find(|p| p.is_file()) {
             Some(p) => Self::load(p, engine),
@@ -243,13 +243,21 @@ fn manifest_path_for(path: &Path) -> Result<PathBuf, DepthNetError> {
 }
 
 /// Where the depth of a photo comes from when no depth file is given.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum DepthSource {
     /// Depth embedded in the photo if it has any, else the network.
     Auto,
     Network,
     Embedded,
+}
+
+impl crate::io::keyword::Keyword for DepthSource {
+    const ALL: &'static [(Self, &'static str)] = &[
+        (Self::Auto, "auto"),
+        (Self::Network, "network"),
+        (Self::Embedded, "embedded"),
+    ];
 }
 
 /// Which depth network to use and how to run it.

@@ -12,6 +12,7 @@ use crate::engine::manifest::Precision;
 
 mod fp16;
 mod int8;
+pub mod locate;
 pub mod manifest;
 pub mod tract;
 

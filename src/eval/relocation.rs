@@ -30,8 +30,8 @@ use std::time::Instant;
 use crate::depth::{read_raw, DepthMap};
 use crate::io::photo::SrgbImage;
 use crate::relocate::ldi::{view_reach, BandColours, Border, Ldi, LdiConfig};
-use crate::relocate::{BorderArg, MeshWarp, RelocateError, Relocator};
-use crate::reshade::net::cli::ReshadeArgs;
+use crate::relocate::{MeshWarp, RelocateError, Relocator};
+use crate::reshade::net::choice::ReshadeConfig;
 use crate::reshade::net::NetError;
 use crate::reshade::{ReshadeError, Reshader};
 use crate::views::{Intrinsics, ViewCamera};
@@ -71,45 +71,24 @@ pub enum EvalError {
     Empty(PathBuf),
 }
 
-pub const EVAL_ABOUT: &str = "\
-Score the relocation methods against ground-truth novel views rendered by the dataset
-renderer (models/train: one folder per example with input.exr, reshaded.exr, novel.exr,
-depth.exr, mask.png, meta.json), using the ground-truth depth: the input unmoved, the
-first mesh warp and the layered depth image, each with the input's colours and with the
-rendered reshaded colours. Prints mean PSNR / SSIM over valid pixels, pixels visible in
-the input and the disoccluded band (the paper's Table 1 for our relocators), and the
-LDI's build and per-view render times.
-
-Example:
-  reshader eval-relocation data/reshade/val --sheets sheets/ --json eval.json";
-
-#[derive(Clone, Debug, clap::Args)]
-pub struct EvalArgs {
-    /// Dataset split folder, e.g. data/reshade/val.
+/// What `eval-relocation` scores and where it writes.
+#[derive(Clone, Debug)]
+pub struct EvalConfig {
+    /// A dataset split folder (one folder per example).
     pub data: PathBuf,
-    /// Evaluate at most this many examples (in name order).
-    #[arg(long)]
+    /// At most this many examples, in name order.
     pub limit: Option<usize>,
-    #[arg(long, default_value_t = 5.5)]
+    /// The tone mapping of the HDR renders.
     pub exposure: f32,
-    #[arg(long, default_value_t = 2.2)]
     pub gamma: f32,
-    /// What the LDI shows beyond the photo's borders (as `render --border`).
-    #[arg(long, value_enum, default_value_t = BorderArg::Extend)]
-    pub border: BorderArg,
-    /// Also write the per-example numbers as JSON here.
-    #[arg(long)]
+    /// What the LDI shows beyond the photo's borders.
+    pub border: Border,
+    /// Where the per-example numbers go as JSON.
     pub json: Option<PathBuf>,
-    /// Write contact sheets here, one PNG per example: top row relocation alone (input |
-    /// mesh-warp | ldi | ground-truth novel view), bottom row the same with the
-    /// ground-truth reshaded colours (reshaded input | mesh-warp | ldi | disoccluded band
-    /// in magenta over the LDI view).
-    #[arg(long)]
+    /// Where the contact sheets go, one PNG per example.
     pub sheets: Option<PathBuf>,
-    /// The reshading model whose colours the LDI also relocates (`--model none`: the
-    /// input's, which repeats the relocation-alone row).
-    #[command(flatten)]
-    pub reshade: ReshadeArgs,
+    /// The reshading model whose colours the LDI also relocates.
+    pub reshade: ReshadeConfig,
 }
 
 /// Where a method's colours come from.
@@ -173,15 +152,15 @@ struct Example {
     offset: [f64; 3],
 }
 
-/// Evaluates every complete example under `args.data`, prints the table and returns
-/// the per-example reports.
-pub fn run(args: &EvalArgs) -> Result<Vec<ExampleReport>, EvalError> {
+/// Evaluates every complete example under `args.data`; returns the per-example reports
+/// and the table of their means.
+pub fn run(args: &EvalConfig) -> Result<(Vec<ExampleReport>, String), EvalError> {
     let dirs = example_dirs(&args.data, args.limit)?;
     let reshader = args.reshade.build()?;
     let mut reports = Vec::new();
     for dir in &dirs {
         let example = load_example(dir, args.exposure, args.gamma)?;
-        let (report, sheet) = evaluate(&example, args.border.into(), reshader.as_ref())?;
+        let (report, sheet) = evaluate(&example, args.border, reshader.as_ref())?;
         log::info!(
             "{}: {}",
             report.id,
@@ -192,7 +171,7 @@ pub fn run(args: &EvalArgs) -> Result<Vec<ExampleReport>, EvalError> {
         }
         reports.push(report);
     }
-    println!("{}", table(&reports, args, &reshader.description()));
+    let table = table(&reports, args, &reshader.description());
     if let Some(path) = &args.json {
         let json = serde_json::to_vec_pretty(&reports).expect("reports serialise");
         crate::io::output::write_atomic(path, &json).map_err(|e| EvalError::Meta {
@@ -200,7 +179,7 @@ pub fn run(args: &EvalArgs) -> Result<Vec<ExampleReport>, EvalError> {
             detail: e.to_string(),
         })?;
     }
-    Ok(reports)
+    Ok((reports, table))
 }
 
 fn example_dirs(root: &Path, limit: Option<usize>) -> Result<Vec<PathBuf>, EvalError> {
@@ -583,13 +562,13 @@ fn write_sheet(dir: &Path, id: &str, images: &[SrgbImage]) -> Result<(), EvalErr
 
 /// The Table-1-style summary: mean PSNR / SSIM per method over all examples, then what
 /// the reshading model adds to the LDI's novel views.
-pub fn table(reports: &[ExampleReport], args: &EvalArgs, model: &str) -> String {
+pub fn table(reports: &[ExampleReport], args: &EvalConfig, model: &str) -> String {
     let mut out = format!(
         "{} examples, tone mapping x{} gamma {}, LDI border {}, reshading model {model}; PSNR dB / SSIM against the ground-truth novel view\n\n",
         reports.len(),
         args.exposure,
         args.gamma,
-        crate::relocate::ldi::Border::from(args.border)
+        args.border
     );
     out.push_str(
         "| method | colours | all | visible in input | disoccluded |\n|---|---|---|---|---|\n",

@@ -3,6 +3,7 @@
 //! atomic output ([`output`]), run.json ([`record`]), the quilt file ([`quilt_file`]), the
 //! RGB-D image ([`rgbd`]) and the HTML and animated previews ([`preview`]).
 
+pub mod keyword;
 pub mod limits;
 pub mod npy;
 pub mod output;

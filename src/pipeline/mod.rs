@@ -70,7 +70,7 @@ pub enum PipelineError {
 }
 
 /// Which files `render` writes; run.json is always written.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Product {
     Views,
     Quilt,
@@ -82,6 +82,18 @@ pub enum Product {
     Preview,
     /// A page that shows the view under the pointer (`preview.html`).
     Html,
+}
+
+impl crate::io::keyword::Keyword for Product {
+    const ALL: &'static [(Self, &'static str)] = &[
+        (Self::Views, "views"),
+        (Self::Quilt, "quilt"),
+        (Self::Panel, "panel"),
+        (Self::Sbs, "sbs"),
+        (Self::Rgbd, "rgbd"),
+        (Self::Preview, "preview"),
+        (Self::Html, "html"),
+    ];
 }
 
 /// Where a scene's depth comes from.

@@ -300,16 +300,11 @@ pub fn check_memory(
 
 /// Whether reshading will run a network: a chosen `--model`/`$RESHADER_MODEL` other
 /// than `none`, or the shipped model directory when none is chosen (as
-/// `ReshadeArgs::build` decides).
+/// `ReshadeConfig::build` decides).
 pub fn reshading_on(model: Option<&Path>) -> bool {
     match chosen_reshade_model(model) {
         Some(path) => path.as_os_str() != "none",
-        None => [
-            PathBuf::from("models/reshade"),
-            Path::new(env!("CARGO_MANIFEST_DIR")).join("models/reshade"),
-        ]
-        .iter()
-        .any(|p| p.is_dir()),
+        None => crate::reshade::net::choice::default_model_dir().is_some(),
     }
 }
 
@@ -319,7 +314,7 @@ pub fn render_size(
     photo: (u32, u32),
     board: &interleave::Board,
     products: &[crate::pipeline::Product],
-    reshade: &crate::reshade::net::cli::ReshadeArgs,
+    reshade: &crate::reshade::net::choice::ReshadeConfig,
     depth_network: bool,
 ) -> RenderSize {
     use crate::pipeline::Product;
@@ -343,15 +338,15 @@ pub fn render_size(
             0
         },
         table_bytes: board.filter().table_bytes_per_subpixel(),
-        network: reshading_on(reshade.model.as_deref()).then_some((reshade.reshade_scale, at_once)),
+        network: reshading_on(reshade.model.as_deref()).then_some((reshade.scale, at_once)),
         depth_network,
     }
 }
 
 /// The views the reshading network decodes at once: --reshade-batch times
 /// --parallel-views.
-pub fn views_at_once(reshade: &crate::reshade::net::cli::ReshadeArgs) -> u32 {
-    (reshade.reshade_batch.max(1) as u64)
+pub fn views_at_once(reshade: &crate::reshade::net::choice::ReshadeConfig) -> u32 {
+    (reshade.batch.max(1) as u64)
         .saturating_mul(reshade.parallel_views.max(1) as u64)
         .min(u64::from(u32::MAX)) as u32
 }
@@ -388,7 +383,7 @@ fn extra_table(bytes_per_subpixel: u64) -> u64 {
 /// The sizes of rendering one view at the photo's own resolution (`view`, `reshade`).
 pub fn single_view_size(
     photo: (u32, u32),
-    reshade: Option<&crate::reshade::net::cli::ReshadeArgs>,
+    reshade: Option<&crate::reshade::net::choice::ReshadeConfig>,
     depth_network: bool,
 ) -> RenderSize {
     RenderSize {
@@ -398,8 +393,7 @@ pub fn single_view_size(
         quilt_pixels: 0,
         panel_pixels: 0,
         table_bytes: 1,
-        network: reshade
-            .and_then(|r| reshading_on(r.model.as_deref()).then_some((r.reshade_scale, 1))),
+        network: reshade.and_then(|r| reshading_on(r.model.as_deref()).then_some((r.scale, 1))),
         depth_network,
     }
 }

@@ -81,7 +81,7 @@ pub fn reach_of(centres: impl IntoIterator<Item = [f64; 3]>, source: &Intrinsics
 }
 
 /// Which relocator the runtime uses.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum RelocateKind {
     /// Layered depth image: cut at depth edges, background inpainted behind occluders.
     #[default]
@@ -90,48 +90,24 @@ pub enum RelocateKind {
     Mesh,
 }
 
+impl crate::io::keyword::Keyword for RelocateKind {
+    const ALL: &'static [(Self, &'static str)] = &[(Self::Ldi, "ldi"), (Self::Mesh, "mesh")];
+}
+
 /// What the relocation options of `render`, `view`, `convert`, `watch` ask for.
-#[derive(Clone, Debug, clap::Args)]
-pub struct RelocateArgs {
-    /// Relocation method: the layered depth image, or the first mesh warp (for comparison).
-    #[arg(long = "relocate", value_enum, default_value_t = RelocateKind::Ldi)]
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct RelocateConfig {
     pub kind: RelocateKind,
-    /// Beyond the photo's borders (LDI): stretch the border pixels outwards, or magnify
-    /// every view slightly so the border never shows.
-    #[arg(long, value_enum, default_value_t = BorderArg::Extend)]
-    pub border: BorderArg,
+    /// Beyond the photo's borders (LDI).
+    pub border: Border,
 }
 
-impl Default for RelocateArgs {
-    fn default() -> Self {
-        Self {
-            kind: RelocateKind::Ldi,
-            border: BorderArg::Extend,
-        }
-    }
-}
-
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
-pub enum BorderArg {
-    Extend,
-    Crop,
-}
-
-impl From<BorderArg> for Border {
-    fn from(b: BorderArg) -> Self {
-        match b {
-            BorderArg::Extend => Border::Extend,
-            BorderArg::Crop => Border::Crop,
-        }
-    }
-}
-
-impl RelocateArgs {
+impl RelocateConfig {
     /// The one constructor of the runtime's relocator (CLI, gallery, benchmark).
     pub fn build(&self) -> Box<dyn Relocator> {
         match self.kind {
             RelocateKind::Ldi => Box::new(LdiRelocator::new(LdiConfig {
-                border: self.border.into(),
+                border: self.border,
                 ..LdiConfig::default()
             })),
             RelocateKind::Mesh => Box::new(MeshWarp::default()),

@@ -8,7 +8,7 @@
 //!     and interpolates the residual between them; (c) `batch` puts several views in one
 //!     decoder call; `parallel_views` runs views on several threads at once.
 
-pub mod cli;
+pub mod choice;
 mod keys;
 pub mod lobes;
 mod models;

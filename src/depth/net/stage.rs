@@ -73,6 +73,67 @@ impl SceneScale {
     }
 }
 
+/// How depth is estimated when no depth file is given: what the depth options of every
+/// command that estimates depth describe.
+#[derive(Clone, Debug, PartialEq)]
+pub struct DepthConfig {
+    /// A manifest or an .onnx with its manifest beside it (`None`: the shipped model).
+    pub model: Option<std::path::PathBuf>,
+    /// Precision of the shipped model (int8 or fp32).
+    pub precision: Precision,
+    /// `tract`, or `ort` (a build with the `ort` feature).
+    pub engine: String,
+    /// `None`: every core.
+    pub threads: Option<usize>,
+    pub scale: SceneScale,
+    /// Snap the upsampled depth's edges to the photo's.
+    pub refine: bool,
+}
+
+impl Default for DepthConfig {
+    fn default() -> Self {
+        Self {
+            model: None,
+            precision: Precision::Fp32,
+            engine: "tract".into(),
+            threads: None,
+            scale: SceneScale::default(),
+            refine: true,
+        }
+    }
+}
+
+impl DepthConfig {
+    /// The network to use.
+    pub fn net(&self) -> super::NetChoice {
+        let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+        super::NetChoice {
+            model: self.model.clone(),
+            precision: self.precision,
+            engine: self.engine.clone(),
+            threads: self.threads.unwrap_or(cores).max(1),
+        }
+    }
+
+    /// The stage options, checked.
+    pub fn options(&self) -> Result<StageOptions, String> {
+        self.scale.check()?;
+        Ok(StageOptions {
+            scale: self.scale,
+            refine: self.refine.then(RefineOptions::default),
+        })
+    }
+
+    /// The estimator these settings describe; the network is loaded on first use.
+    pub fn estimator(&self, source: super::DepthSource) -> Result<super::DepthEstimator, String> {
+        Ok(super::DepthEstimator::new(
+            source,
+            self.net(),
+            self.options()?,
+        ))
+    }
+}
+
 /// Settings of the depth stage that do not depend on where the depth comes from.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct StageOptions {

@@ -10,7 +10,6 @@
 //! than `--depth-max-age-ms`, since the network is the slowest stage and the scene in
 //! front of a fixed camera changes slowly.
 
-use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Condvar, Mutex};
 use std::time::{Duration, Instant};
@@ -19,14 +18,16 @@ use image::imageops::{self, FilterType};
 use image::RgbImage;
 use interleave::{Board, Weaver};
 
-use super::{CameraRequest, CaptureError, Frame, FrameSource, PixelFormat};
-use crate::depth::net::cli::EstimateArgs;
-use crate::depth::net::{self as depth_net, DepthNet, DepthNetError, DepthSource, StageOptions};
+mod setup;
+
+pub use setup::{prepare_live, LiveConfig, LiveDepthMode, PreparedLive};
+
+use super::{CaptureError, Frame, FrameSource};
+use crate::depth::net::{self as depth_net, DepthNet, DepthNetError, StageOptions};
 use crate::depth::DepthMap;
 use crate::device::display::{DisplayError, FrameSink};
 use crate::io::photo::SrgbImage;
-use crate::relocate::{self, RelocateArgs, RelocateError, Relocator};
-use crate::reshade::net::cli::ReshadeArgs;
+use crate::relocate::{self, RelocateError, Relocator};
 use crate::reshade::net::NetError;
 use crate::reshade::{ReshadeError, Reshader, TrainingFrame};
 use crate::views::{robust_focus, robust_range, Intrinsics, ViewCamera, ViewError, ViewRig};
@@ -41,10 +42,6 @@ pub enum LiveError {
     Board(#[from] interleave::BoardError),
     #[error("weaving failed: {0}")]
     Weave(#[from] interleave::WeaveError),
-    #[error("--board is required unless --list-formats is given")]
-    NoBoard,
-    #[error("cannot install the SIGINT/SIGTERM handler: {0}")]
-    Signal(std::io::Error),
     #[error(transparent)]
     DepthNet(#[from] DepthNetError),
     #[error(transparent)]
@@ -59,244 +56,6 @@ pub enum LiveError {
     Memory(#[from] crate::pipeline::preflight::OverBudget),
     #[error("{0}")]
     Options(String),
-}
-
-/// Where the views' depth comes from.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
-pub enum LiveDepthMode {
-    /// No depth: every view is the camera frame (the panel shows it flat).
-    Off,
-    /// The depth network on the working frame; each view is relocated with it.
-    Network,
-}
-
-#[derive(clap::Args, Debug)]
-pub struct LiveArgs {
-    /// V4L2 camera device, or a recording of raw YUYV/MJPEG frames (RSHFRM01 file).
-    #[arg(long, default_value = "/dev/video0")]
-    pub camera: PathBuf,
-    /// Built-in board name (see `reshader boards`) or path of a board .toml file.
-    #[arg(long, required_unless_present = "list_formats")]
-    pub board: Option<String>,
-    /// Per-unit calibration in Looking-Glass visual.json form.
-    #[arg(long)]
-    pub calibration: Option<PathBuf>,
-    /// Frame rate asked of the camera.
-    #[arg(long, default_value_t = 30)]
-    pub fps: u32,
-    /// Where frames go: `none` (numbered PNGs in --out), `png:DIR`, `fb:/dev/fb0`, or
-    /// `fb:FILE:WIDTHxHEIGHT:FORMAT[:STRIDE]` for a file standing in for a framebuffer.
-    #[arg(long, default_value = "none")]
-    pub display: String,
-    /// Directory of the PNG frames for `--display none`.
-    #[arg(long, default_value = "live-frames")]
-    pub out: PathBuf,
-    /// List the camera's formats, sizes and frame rates, and exit.
-    #[arg(long)]
-    pub list_formats: bool,
-    /// Camera pixel format [default: the camera's current one if decodable, else MJPEG].
-    #[arg(long)]
-    pub format: Option<PixelFormat>,
-    /// Capture size WIDTHxHEIGHT [default: the camera's current one].
-    #[arg(long, value_parser = parse_size)]
-    pub size: Option<(u32, u32)>,
-    /// Working resolution of the views, WIDTHxHEIGHT [default: the board's view size].
-    #[arg(long, value_parser = parse_size)]
-    pub work_size: Option<(u32, u32)>,
-    /// Stop after this many frames have been shown.
-    #[arg(long)]
-    pub frames: Option<u64>,
-    /// Replay a recording at its recorded pace (dropping frames when behind) instead of
-    /// as fast as the pipeline takes them.
-    #[arg(long)]
-    pub realtime: bool,
-    /// Depth for the views: off (flat: every view is the camera frame) or network.
-    #[arg(long, value_enum, default_value_t = LiveDepthMode::Off)]
-    pub depth: LiveDepthMode,
-    /// Reuse a frame's depth for later frames until it is this many milliseconds old
-    /// (0: run the depth network on every frame).
-    #[arg(long, default_value_t = 500)]
-    pub depth_max_age_ms: u64,
-    /// Horizontal field of view of the camera in degrees, for relocating the views.
-    #[arg(long, default_value_t = crate::io::photo::DEFAULT_HFOV_DEG)]
-    pub fov: f64,
-    #[command(flatten)]
-    pub relocate: RelocateArgs,
-    #[command(flatten)]
-    pub estimate: EstimateArgs,
-    #[command(flatten)]
-    pub reshade: ReshadeArgs,
-}
-
-pub const LIVE_ABOUT: &str = "\
-Show a live camera on a light-field panel: capture (V4L2, YUYV or MJPEG) → views at the
-working resolution → weave for the board → display. Frames are dropped, never queued,
-when a stage is slower than the camera. At -v the achieved fps and per-stage times are
-logged once a second; a summary is printed at the end.
-
-By default (--depth off) all views are the camera frame itself (the panel shows it flat).
-With --depth network the depth network runs on the working frame (its depth reused while
-younger than --depth-max-age-ms) and every view is relocated with it (--relocate).
-
-Live views keep the camera's shading unless a reshading model is named (--model, or
-$RESHADER_MODEL; needs --depth network): unlike render, live does not fall back to
-models/reshade, because the shipped network takes about 0.1 s per view on a CPU, seconds
-per frame for a 48-view board. --key-views and --reshade-scale cut that cost.
-
-Examples:
-  reshader live --camera /dev/video0 --list-formats
-  reshader live --camera /dev/video0 --board looking-glass-portrait --display fb:/dev/fb0 -v
-  reshader live --camera /dev/video0 --board looking-glass-portrait --depth network \\
-      --work-size 210x280 --depth-max-age-ms 1000 -v
-  reshader live --camera recording.rshfrm --board looking-glass-portrait --frames 300 -v";
-
-fn parse_size(s: &str) -> Result<(u32, u32), String> {
-    let (w, h) = s
-        .split_once('x')
-        .ok_or_else(|| format!("expected WIDTHxHEIGHT, got '{s}'"))?;
-    let num = |t: &str| {
-        t.parse::<u32>()
-            .ok()
-            .filter(|&v| (1..=super::MAX_FRAME_SIDE).contains(&v))
-            .ok_or_else(|| format!("'{t}' is not a size in 1..={}", super::MAX_FRAME_SIDE))
-    };
-    Ok((num(w)?, num(h)?))
-}
-
-/// `reshader live`.
-pub fn run_live(args: &LiveArgs) -> Result<(), LiveError> {
-    if args.list_formats {
-        for format in super::list_formats(&args.camera)? {
-            print!("{format}");
-        }
-        return Ok(());
-    }
-    let board_name = args.board.as_deref().ok_or(LiveError::NoBoard)?;
-    let board = crate::pipeline::load_board(board_name, args.calibration.as_deref())?;
-    // Before the networks load: the frame size asked for (--size), else no larger
-    // than the views; once the camera says what it delivers, again with that.
-    let work = args.work_size.unwrap_or_else(|| board.view_size());
-    let asked = args.size.unwrap_or(work);
-    check_memory(args, &board, asked)?;
-    let depth = live_depth(args)?;
-    let request = CameraRequest {
-        format: args.format,
-        size: args.size,
-        fps: Some(args.fps),
-        paced: args.realtime,
-    };
-    let source = super::open_source(&args.camera, &request)?;
-    if source.size() != asked {
-        check_memory(args, &board, source.size())?;
-    }
-    let sink = crate::device::display::open_sink(&args.display, &args.out)?;
-    let stop = crate::device::gallery::cli::stop_on_signals().map_err(LiveError::Signal)?;
-    let opts = LiveOptions {
-        work_size: args.work_size,
-        max_frames: args.frames,
-        depth,
-    };
-    let summary = run_pipeline(source, sink, &board, &opts, &stop)?;
-    eprintln!("{summary}");
-    if summary.fps() < f64::from(args.fps) * 0.9 && summary.frames > 1 {
-        eprintln!(
-            "note: below the requested {} fps; a smaller --work-size or a board with fewer \
-             panel pixels is faster",
-            args.fps
-        );
-    }
-    Ok(())
-}
-
-/// Refuses a live run whose frames of `frame` pixels would not fit --max-memory: the
-/// estimate of rendering one such photo for the board at the working size, with the
-/// networks live loads, the panel and no quilt.
-fn check_memory(args: &LiveArgs, board: &Board, frame: (u32, u32)) -> Result<(), LiveError> {
-    let work = args.work_size.unwrap_or_else(|| board.view_size());
-    let (pw, ph) = board.panel_size();
-    let depth = args.depth == LiveDepthMode::Network;
-    let reshading = depth && named_reshade_model(&args.reshade).is_some();
-    let size = crate::pipeline::preflight::RenderSize {
-        photo: frame,
-        views: board.views() as u32,
-        view: work,
-        quilt_pixels: 0,
-        panel_pixels: u64::from(pw) * u64::from(ph),
-        table_bytes: board.filter().table_bytes_per_subpixel(),
-        network: reshading.then_some((
-            args.reshade.reshade_scale,
-            crate::pipeline::preflight::views_at_once(&args.reshade),
-        )),
-        depth_network: depth,
-    };
-    crate::pipeline::preflight::check_memory(
-        format!(
-            "showing {}x{} frames on {} ({} views of {}x{})",
-            frame.0,
-            frame.1,
-            board.name(),
-            board.views(),
-            work.0,
-            work.1
-        ),
-        &crate::pipeline::preflight::estimate(&size),
-        " (or use a smaller --work-size or --size)",
-    )?;
-    Ok(())
-}
-
-/// The reshading model named by --model or $RESHADER_MODEL, unless it is `none`.
-fn named_reshade_model(args: &ReshadeArgs) -> Option<PathBuf> {
-    args.model
-        .clone()
-        .or_else(|| std::env::var_os("RESHADER_MODEL").map(PathBuf::from))
-        .filter(|model| model.as_os_str() != "none")
-}
-
-/// The depth stage of `--depth network`, loaded before capture starts so that a bad model
-/// fails before the camera is opened.
-fn live_depth(args: &LiveArgs) -> Result<Option<LiveDepth>, LiveError> {
-    if args.depth == LiveDepthMode::Off {
-        if args
-            .reshade
-            .model
-            .as_ref()
-            .is_some_and(|m| m.as_os_str() != "none")
-        {
-            return Err(LiveError::Options(
-                "--model needs --depth network: reshading needs the frame's depth".into(),
-            ));
-        }
-        return Ok(None);
-    }
-    if !(args.fov > 0.0 && args.fov < 180.0) {
-        return Err(LiveError::Options(format!(
-            "--fov {} must be between 0 and 180 degrees",
-            args.fov
-        )));
-    }
-    let estimator = args
-        .estimate
-        .estimator(DepthSource::Network)
-        .map_err(LiveError::Options)?;
-    let reshader = live_reshader(&args.reshade)?;
-    Ok(Some(LiveDepth {
-        reshader,
-        net: estimator.net()?,
-        opts: *estimator.options(),
-        max_age: Duration::from_millis(args.depth_max_age_ms),
-        relocator: args.relocate.build(),
-        hfov_deg: args.fov,
-    }))
-}
-
-/// The reshading network when one is named explicitly (see [`LIVE_ABOUT`] for why live
-/// has no default model), built before the camera opens so that a bad model fails first.
-fn live_reshader(args: &ReshadeArgs) -> Result<Option<Box<dyn Reshader + Send + Sync>>, LiveError> {
-    match named_reshade_model(args) {
-        Some(_) => Ok(Some(args.build()?)),
-        None => Ok(None),
-    }
 }
 
 #[derive(Default)]

@@ -13,7 +13,8 @@
 //! sha256 and the converter's settings fingerprint, so an edited photo or a different
 //! board is converted again.
 
-pub mod cli;
+pub mod photos;
+pub mod render;
 pub mod watch;
 
 use std::collections::BTreeMap;

@@ -116,11 +116,11 @@ fn sidecar_of(path: &Path) -> Option<String> {
     let name = path.file_name()?.to_str()?;
     let (stem, ext) = name.rsplit_once('.')?;
     if name.starts_with('.')
-        || !super::cli::DEPTH_EXTENSIONS.contains(&ext.to_ascii_lowercase().as_str())
+        || !super::photos::DEPTH_EXTENSIONS.contains(&ext.to_ascii_lowercase().as_str())
     {
         return None;
     }
-    super::cli::DEPTH_SIDECARS
+    super::photos::DEPTH_SIDECARS
         .iter()
         .find_map(|(suffix, _)| stem.strip_suffix(suffix))
         .filter(|s| !s.is_empty())
@@ -138,7 +138,7 @@ pub fn is_watched_photo(path: &Path) -> bool {
     };
     !name.starts_with('.')
         && PHOTO_EXTENSIONS.contains(&ext.to_ascii_lowercase().as_str())
-        && !super::cli::DEPTH_SIDECARS
+        && !super::photos::DEPTH_SIDECARS
             .iter()
             .any(|(suffix, _)| stem.ends_with(suffix))
 }

@@ -5,9 +5,13 @@
 //! Every stage row is always reported: a stage this runtime does not have yet says
 //! "n/a (not built)" rather than disappearing, so tables from different builds line up.
 
+mod compare;
+mod models;
 pub mod peer;
 pub mod report;
 mod stages;
+
+pub use models::choose_model;
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -15,36 +19,20 @@ use std::time::Instant;
 use interleave::{Board, BoardError, WeaveError};
 
 use crate::depth::net::{DepthNet, DepthNetError};
-use crate::engine::manifest::{self, ManifestError, Precision, Task};
+use crate::engine::manifest::{ManifestError, Precision};
 use crate::engine::{self, EngineError};
 use crate::io::output::OutputError;
 use crate::io::photo::PhotoError;
 use crate::pipeline::progress::Progress;
-use crate::relocate::{RelocateArgs, RelocateError, Relocator};
-use crate::reshade::net::cli::{Head, ReshadeArgs, DEFAULT_MODEL_DIR};
+use crate::relocate::{RelocateConfig, RelocateError, Relocator};
+use crate::reshade::net::choice::{Head, ReshadeConfig};
 use crate::reshade::net::lobes::LobeReshader;
 use crate::reshade::net::{NetError, NetOptions, NetReshader};
 use crate::reshade::Reshader;
 use crate::views::ViewError;
 
-use peer::Job;
-use report::{Case, CompareError, NaiveRow, PeerRow, Report, Stat, FORMAT};
-
-pub const BENCH_ABOUT: &str = "\
-Time the conversion of a photo to a woven frame, stage by stage (median and min-max of
---runs runs), for the shipped example photo and a synthetic 12 MP photo on each board,
-with peak memory, tract vs onnxruntime on the same ONNX files, and the paper-size network
-run per view (the naive configuration) for comparison. Build with --release: dev-profile
-times are not representative.
-
-Examples:
-  cargo run --release -- bench --out bench.md --out bench.json
-  cargo run --release -- bench --boards looking-glass-portrait --compare bench.json
-
-The reshading model timed is --model, else models/reshade (or $RESHADER_MODEL) when it
-has the --precision asked for, else an untrained export of the shipped architecture
-made once into the cache by bench/export_untrained.py, else the tiny test fixture; a
-stand-in is labelled as such in every table. See bench/README.md.";
+use compare::{naive_rows, peer_rows};
+use report::{CompareError, Report, Stat, FORMAT};
 
 pub const DEFAULT_BOARDS: &str = "looking-glass-portrait,looking-glass-go,generic-8view";
 
@@ -92,77 +80,80 @@ fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> BenchError + '_ {
     }
 }
 
-/// Options of `reshader bench`.
-#[derive(Clone, Debug, clap::Args)]
-pub struct BenchArgs {
+/// What `reshader bench` measures and where it writes.
+#[derive(Clone, Debug)]
+pub struct BenchConfig {
     /// The reshading network and its options, as `render` takes them.
-    #[command(flatten)]
-    pub reshade: ReshadeArgs,
+    pub reshade: ReshadeConfig,
     /// The relocator, as `render` takes it.
-    #[command(flatten)]
-    pub relocate: RelocateArgs,
-    /// Precision of the shipped depth model (models/depth), as `render --depth-precision`.
-    #[arg(long, default_value = "fp32")]
+    pub relocate: RelocateConfig,
+    /// Precision of the shipped depth model.
     pub depth_precision: Precision,
-    /// The real photo to convert (JPEG or PNG).
-    #[arg(long, default_value = "examples/pumpkin/pumpkin.jpg")]
+    /// The real photo to convert.
     pub photo: PathBuf,
-    /// Size of the synthetic photo generated at run time (WxH; 4000x3000 is 12 MP).
-    #[arg(long, default_value = "4000x3000", value_parser = parse_size)]
+    /// Size of the synthetic photo generated at run time.
     pub synthetic: (u32, u32),
-    /// Boards (built-in names or .toml files), comma-separated.
-    #[arg(long, default_value = DEFAULT_BOARDS, value_delimiter = ',')]
+    /// Built-in board names or board files.
     pub boards: Vec<String>,
     /// Timed runs per photo and board (after one untimed warm-up run).
-    #[arg(long, default_value_t = 3)]
     pub runs: usize,
-    /// Threads for inference (unless --reshade-threads) and weaving.
-    #[arg(long, default_value_t = 2)]
+    /// Threads for inference (unless the reshading threads are given) and weaving.
     pub threads: usize,
-    /// Write the report: .md for Markdown, .json for the comparable form (repeatable).
-    #[arg(long)]
+    /// Report files: .md for Markdown, .json for the comparable form.
     pub out: Vec<PathBuf>,
-    /// A previous run's JSON: print the change of every stage against it.
-    #[arg(long)]
+    /// A previous run's JSON to compare every stage with.
     pub compare: Option<PathBuf>,
-    /// Skip the onnxruntime peer.
-    #[arg(long)]
     pub no_peer: bool,
-    /// Skip the naive configuration (paper-size network per view).
-    #[arg(long)]
     pub no_naive: bool,
     /// Views the naive configuration really runs per board (the rest is extrapolated).
-    #[arg(long, default_value_t = 2)]
     pub naive_views: usize,
-    /// Python with onnxruntime and the training toolchain [default: $RESHADER_PYTHON,
-    /// else ~/.cache/reshader/venv/bin/python, else what scripts/python-env prints].
-    #[arg(long)]
+    /// Python with onnxruntime and the training toolchain (`None`: `$RESHADER_PYTHON`,
+    /// else ~/.cache/reshader/venv/bin/python, else what scripts/python-env prints).
     pub python: Option<PathBuf>,
-    /// Where the untrained exports (naive network, reshading stand-in) are cached, never
-    /// committed [default: ~/.cache/reshader/bench].
-    #[arg(long)]
+    /// Where the untrained exports are cached (`None`: ~/.cache/reshader/bench).
     pub cache: Option<PathBuf>,
 }
 
-fn parse_size(s: &str) -> Result<(u32, u32), String> {
-    let (w, h) = s
-        .split_once('x')
-        .ok_or_else(|| format!("expected WxH, got '{s}'"))?;
-    let num = |t: &str| {
-        t.parse::<u32>()
-            .ok()
-            .filter(|&v| v >= 32)
-            .ok_or_else(|| format!("'{t}' is not a size of at least 32"))
-    };
-    Ok((num(w)?, num(h)?))
+impl Default for BenchConfig {
+    fn default() -> Self {
+        Self {
+            reshade: ReshadeConfig::default(),
+            relocate: RelocateConfig::default(),
+            depth_precision: Precision::Fp32,
+            photo: PathBuf::from(DEFAULT_PHOTO),
+            synthetic: (4000, 3000),
+            boards: DEFAULT_BOARDS.split(',').map(String::from).collect(),
+            runs: 3,
+            threads: 2,
+            out: Vec::new(),
+            compare: None,
+            no_peer: false,
+            no_naive: false,
+            naive_views: 2,
+            python: None,
+            cache: None,
+        }
+    }
 }
 
-impl BenchArgs {
+/// The real photo converted by default.
+pub const DEFAULT_PHOTO: &str = "examples/pumpkin/pumpkin.jpg";
+
+/// The smallest side of the synthetic photo.
+pub const MIN_SYNTHETIC_SIDE: u32 = 32;
+
+impl BenchConfig {
     fn check(&self) -> Result<(), BenchError> {
         if self.runs == 0 || self.threads == 0 || self.naive_views == 0 {
             return Err(BenchError::Usage(
                 "--runs, --threads and --naive-views must be at least 1".into(),
             ));
+        }
+        if self.synthetic.0 < MIN_SYNTHETIC_SIDE || self.synthetic.1 < MIN_SYNTHETIC_SIDE {
+            return Err(BenchError::Usage(format!(
+                "--synthetic {}x{}: each side must be at least {MIN_SYNTHETIC_SIDE}",
+                self.synthetic.0, self.synthetic.1
+            )));
         }
         for out in &self.out {
             if !matches!(
@@ -179,16 +170,18 @@ impl BenchArgs {
     }
 }
 
-/// Runs `reshader bench`: prints the Markdown report (and the comparison), writes --out.
-pub fn main(args: &BenchArgs, command: &str) -> Result<Report, BenchError> {
+/// Measures, then writes every `--out` file; returns the report and the text to show
+/// (the Markdown report, and the comparison with `--compare`'s run).
+pub fn run_and_write(args: &BenchConfig, command: &str) -> Result<(Report, String), BenchError> {
     args.check()?;
     let previous = args.compare.as_deref().map(Report::load).transpose()?;
     let report = run(args, command)?;
     let markdown = report.to_markdown();
-    println!("{markdown}");
+    let mut shown = markdown.clone();
     let comparison = previous.map(|p| report.compare(&p));
     if let Some(text) = &comparison {
-        println!("{text}");
+        shown.push('\n');
+        shown.push_str(text);
     }
     for out in &args.out {
         let text = if out.extension().is_some_and(|e| e == "json") {
@@ -202,7 +195,7 @@ pub fn main(args: &BenchArgs, command: &str) -> Result<Report, BenchError> {
         };
         crate::io::output::write_atomic(out, text.as_bytes())?;
     }
-    Ok(report)
+    Ok((report, shown))
 }
 
 /// The reshading model timed: either head, as `render` would load it.
@@ -277,7 +270,7 @@ impl ModelChoice {
 }
 
 /// Measures every case and the comparisons; writes nothing but its scratch directory.
-pub fn run(args: &BenchArgs, command: &str) -> Result<Report, BenchError> {
+pub fn run(args: &BenchConfig, command: &str) -> Result<Report, BenchError> {
     args.check()?;
     let started = Instant::now();
     let load_average = load_average();
@@ -287,7 +280,7 @@ pub fn run(args: &BenchArgs, command: &str) -> Result<Report, BenchError> {
     )?;
     let model = choose_model(args)?;
     let r = &args.reshade;
-    let threads = r.reshade_threads.unwrap_or(args.threads);
+    let threads = r.threads.unwrap_or(args.threads);
     let per_view = (threads / r.parallel_views.max(1)).max(1);
     let precision = r.precision_for(Some(model.path()));
     let head = r.head_for(model.path())?;
@@ -420,50 +413,6 @@ fn reshade_label(description: &str) -> String {
     }
 }
 
-/// --model, else $RESHADER_MODEL, else models/reshade when it has the precision asked
-/// for, else the untrained stand-in (exported once), else the fixture.
-pub fn choose_model(args: &BenchArgs) -> Result<ModelChoice, BenchError> {
-    let precision = args.reshade.precision_for(args.reshade.model.as_deref());
-    if let Some(p) = args
-        .reshade
-        .model
-        .clone()
-        .or_else(|| std::env::var_os("RESHADER_MODEL").map(PathBuf::from))
-    {
-        return Ok(ModelChoice::Given(p));
-    }
-    let shipped = source_path(DEFAULT_MODEL_DIR);
-    let head = args
-        .reshade
-        .head
-        .unwrap_or(crate::reshade::net::cli::DEFAULT_HEAD);
-    if shipped.is_dir() && !reshade_manifests(&shipped, Some(precision), head)?.is_empty() {
-        return Ok(ModelChoice::Shipped(shipped));
-    }
-    log::warn!(
-        "no {precision} {head}-head reshading model in {}: timing a stand-in",
-        shipped.display()
-    );
-    // The untrained stand-in is the residual head's architecture.
-    if precision != Precision::Int8 && head == Head::Residual {
-        match untrained_model(args, precision) {
-            Ok(path) => return Ok(ModelChoice::Untrained(path)),
-            Err(e) => log::warn!("untrained stand-in not available ({e}); using the fixture"),
-        }
-    }
-    Ok(ModelChoice::Fixture(source_path("models/fixtures")))
-}
-
-/// A path relative to the working directory, else to the source tree.
-fn source_path(rel: &str) -> PathBuf {
-    let local = PathBuf::from(rel);
-    if local.exists() {
-        local
-    } else {
-        Path::new(env!("CARGO_MANIFEST_DIR")).join(rel)
-    }
-}
-
 fn depth_label(net: &DepthNet) -> String {
     let m = net.manifest();
     format!(
@@ -520,332 +469,6 @@ mod memory {
         let kib: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
         Some(kib / 1024.0)
     }
-}
-
-/// The source tree's copy of a benchmark script.
-fn script(name: &str) -> PathBuf {
-    source_path(&format!("bench/{name}"))
-}
-
-fn cache_home() -> PathBuf {
-    std::env::var_os("HOME")
-        .map_or_else(std::env::temp_dir, PathBuf::from)
-        .join(".cache/reshader")
-}
-
-fn python(args: &BenchArgs) -> Result<PathBuf, BenchError> {
-    if let Some(p) = args
-        .python
-        .clone()
-        .or_else(|| std::env::var_os("RESHADER_PYTHON").map(PathBuf::from))
-    {
-        return Ok(p);
-    }
-    let venv = cache_home().join("venv/bin/python");
-    if venv.is_file() {
-        return Ok(venv);
-    }
-    let env_script = Path::new(env!("CARGO_MANIFEST_DIR")).join("scripts/python-env");
-    let out = std::process::Command::new(&env_script)
-        .output()
-        .map_err(io_err(&env_script))?;
-    let venv = String::from_utf8_lossy(&out.stdout).trim().to_owned();
-    if !out.status.success() || venv.is_empty() {
-        return Err(BenchError::Usage(format!(
-            "no Python with onnxruntime: {} failed; pass --python or --no-peer --no-naive",
-            env_script.display()
-        )));
-    }
-    Ok(PathBuf::from(venv).join("bin/python"))
-}
-
-/// The reshading manifests of `model` at `precision` (None: every precision) for `head`.
-/// For a directory: its manifests of that head, leaving out a precision's single graph
-/// when the pair of that precision is there (the runtime runs the pair). For a manifest:
-/// it and, for one half of a pair, the other half beside it.
-fn reshade_manifests(
-    model: &Path,
-    precision: Option<Precision>,
-    head: Head,
-) -> Result<Vec<PathBuf>, BenchError> {
-    if model.is_file() {
-        let mut files = vec![model.to_owned()];
-        let name = model
-            .file_name()
-            .map(|n| n.to_string_lossy().into_owned())
-            .unwrap_or_default();
-        let partner = if name.contains("decoder") {
-            name.replace("decoder", "encoder")
-        } else {
-            name.replace("encoder", "decoder")
-        };
-        let partner = model.with_file_name(&partner);
-        if partner != model && partner.is_file() {
-            files.insert(0, partner);
-        }
-        return Ok(files);
-    }
-    let mut found: Vec<(PathBuf, manifest::Manifest)> = std::fs::read_dir(model)
-        .map_err(io_err(model))?
-        .flatten()
-        .map(|e| e.path())
-        .filter(|p| p.extension().is_some_and(|e| e == "json"))
-        .filter_map(|p| manifest::Manifest::load(&p).ok().map(|m| (p, m)))
-        .filter(|(_, m)| {
-            precision.is_none_or(|p| m.precision == p)
-                && match head {
-                    Head::Residual => crate::reshade::net::is_residual(m.task),
-                    Head::Lobes => m.task == Task::ReshadeLobes,
-                }
-        })
-        .collect();
-    let split: Vec<Precision> = found
-        .iter()
-        .filter(|(_, m)| m.task == Task::ReshadeDecoder)
-        .map(|(_, m)| m.precision)
-        .collect();
-    found.retain(|(_, m)| m.task != Task::Reshade || !split.contains(&m.precision));
-    let mut paths: Vec<PathBuf> = found.into_iter().map(|(p, _)| p).collect();
-    paths.sort();
-    Ok(paths)
-}
-
-fn padded(v: u32, multiple: usize) -> usize {
-    (v as usize).div_ceil(multiple.max(1)) * multiple.max(1)
-}
-
-/// tract and onnxruntime on the depth models (at the network size the synthetic photo
-/// gets) and on every precision of the reshading model's files (at the size the first
-/// board's last case reshaded at).
-fn peer_rows(
-    args: &BenchArgs,
-    ctx: &Context,
-    model: &Path,
-    head: Head,
-    cases: &[Case],
-) -> Result<Vec<PeerRow>, BenchError> {
-    let mut jobs = Vec::new();
-    let (dw, dh) = ctx.depth.network_size(args.synthetic.0, args.synthetic.1)?;
-    for precision in [Precision::Int8, Precision::Fp32] {
-        let path = source_path(&format!(
-            "{}/{}-{precision}.json",
-            crate::depth::net::DEFAULT_MODEL_DIR,
-            crate::depth::net::DEFAULT_MODEL
-        ));
-        let model = manifest::load_verified(&path)?;
-        jobs.push(Job::for_manifest(
-            &format!("depth {}", model.manifest.name),
-            &model,
-            dh,
-            dw,
-        )?);
-    }
-    if let Some(case) = cases
-        .iter()
-        .rev()
-        .find(|c| Some(&c.board) == cases.first().map(|f| &f.board))
-    {
-        let [ww, wh] = case.work_size;
-        for path in reshade_manifests(model, None, head)? {
-            let model = manifest::load_verified(&path)?;
-            let m = model.manifest.size_multiple as usize;
-            let label = format!("{} {}", model.manifest.task, model.manifest.name);
-            jobs.push(Job::for_manifest(
-                &label,
-                &model,
-                padded(wh, m),
-                padded(ww, m),
-            )?);
-        }
-    }
-    let (version, ort) = match python(args).and_then(|py| {
-        peer::time_onnxruntime(
-            &py,
-            &script("peer_onnxruntime.py"),
-            &jobs,
-            args.threads,
-            args.runs.max(3),
-        )
-    }) {
-        Ok((v, r)) => (Some(v), r),
-        Err(e) => {
-            log::warn!("onnxruntime peer not run: {e}");
-            (None, Vec::new())
-        }
-    };
-    Ok(jobs
-        .iter()
-        .map(|job| peer_row(args, job, &ort, version.as_deref()))
-        .collect())
-}
-
-fn peer_row(
-    args: &BenchArgs,
-    job: &Job,
-    ort: &[(String, Result<Stat, String>)],
-    version: Option<&str>,
-) -> PeerRow {
-    let tract = peer::time_tract(job, args.threads, args.runs.max(3));
-    let ort_time = ort
-        .iter()
-        .find(|(l, _)| *l == job.label)
-        .map(|(_, r)| r.clone());
-    let mut notes = Vec::new();
-    if let Err(e) = &tract {
-        notes.push(format!("tract: {e}"));
-    }
-    match (&ort_time, version) {
-        (Some(Err(e)), _) => notes.push(format!("onnxruntime: {e}")),
-        (None, _) => notes.push("onnxruntime not run (see log)".into()),
-        (Some(Ok(_)), Some(v)) => notes.push(format!("onnxruntime {v}")),
-        (Some(Ok(_)), None) => {}
-    }
-    PeerRow {
-        model: job.label.clone(),
-        shapes: job.shapes_text(),
-        tract: tract.ok(),
-        onnxruntime: ort_time.and_then(Result::ok),
-        note: Some(notes.join("; ")),
-    }
-}
-
-/// The shipped architecture's size, for the untrained stand-in.
-const STAND_IN_SIZE: &str = "lite";
-
-/// The untrained stand-in's decoder manifest (its encoder is found beside it).
-fn untrained_model(args: &BenchArgs, precision: Precision) -> Result<PathBuf, BenchError> {
-    let stem = cached_export(args, STAND_IN_SIZE, true, precision)?;
-    Ok(stem.with_file_name(format!(
-        "{}-decoder.json",
-        stem.file_stem().unwrap_or_default().to_string_lossy()
-    )))
-}
-
-/// A randomly initialised network of `size` exported once into the cache by
-/// bench/export_untrained.py; the single graph's manifest.
-fn cached_export(
-    args: &BenchArgs,
-    size: &str,
-    split: bool,
-    precision: Precision,
-) -> Result<PathBuf, BenchError> {
-    let dir = args
-        .cache
-        .clone()
-        .unwrap_or_else(|| cache_home().join("bench"));
-    let stem = format!("reshade-{size}-untrained-{precision}");
-    let manifest = dir.join(format!("{stem}.json"));
-    let decoder = dir.join(format!("{stem}-decoder.json"));
-    if manifest.is_file() && (!split || decoder.is_file()) {
-        return Ok(manifest);
-    }
-    let py = python(args)?;
-    let exporter = script("export_untrained.py");
-    log::info!(
-        "exporting an untrained {size} network to {} (once)",
-        dir.display()
-    );
-    let mut command = std::process::Command::new(&py);
-    command
-        .arg(&exporter)
-        .arg("--out")
-        .arg(&dir)
-        .arg("--size")
-        .arg(size)
-        .arg("--precision")
-        .arg(precision.to_string());
-    if split {
-        command.arg("--split");
-    }
-    let status = command.status().map_err(io_err(&py))?;
-    if !status.success() || !manifest.is_file() {
-        return Err(BenchError::Peer {
-            script: exporter,
-            problem: format!(
-                "exited with {status} without writing {}",
-                manifest.display()
-            ),
-        });
-    }
-    Ok(manifest)
-}
-
-fn naive_rows(
-    args: &BenchArgs,
-    boards: &[Board],
-    cases: &[Case],
-) -> Result<Vec<NaiveRow>, BenchError> {
-    let model = match cached_export(args, "full", false, Precision::Fp32) {
-        Ok(path) => manifest::load_verified(&path)?,
-        Err(e) => {
-            log::warn!("naive configuration not run: {e}");
-            return Ok(boards
-                .iter()
-                .map(|b| NaiveRow {
-                    board: b.name().into(),
-                    views: b.views(),
-                    network_size: [0, 0],
-                    per_view: None,
-                    timed_views: 0,
-                    runtime_ms: None,
-                    candidate_ms: None,
-                    note: Some(format!("not run: {e}")),
-                })
-                .collect());
-        }
-    };
-    let m = model.manifest.size_multiple as usize;
-    let mut rows = Vec::new();
-    for board in boards {
-        let Some(runtime) = runtime_reshading(cases, board.name()) else {
-            continue;
-        };
-        let [ww, wh] = runtime.work_size;
-        let (pw, ph) = (padded(ww, m), padded(wh, m));
-        let job = Job::for_manifest("naive", &model, ph, pw)?;
-        let per_view = peer::time_tract(&job, args.threads, args.naive_views);
-        rows.push(NaiveRow {
-            board: board.name().into(),
-            views: board.views(),
-            network_size: [pw, ph],
-            per_view: per_view.as_ref().ok().copied(),
-            timed_views: args.naive_views,
-            runtime_ms: Some(runtime.ms),
-            candidate_ms: runtime.candidate_ms,
-            note: Some(match per_view {
-                Err(e) => format!("failed: {e}"),
-                Ok(_) => format!("runtime figure from {}", runtime.photo),
-            }),
-        });
-    }
-    Ok(rows)
-}
-
-/// The runtime's reshading stage for one board.
-struct RuntimeReshading {
-    ms: f64,
-    candidate_ms: Option<f64>,
-    photo: String,
-    work_size: [u32; 2],
-}
-
-/// Encoder + decoder × views medians for `board`, preferring the synthetic photo's case
-/// (the largest), with the photo it came from and the size it reshaded at.
-fn runtime_reshading(cases: &[Case], board: &str) -> Option<RuntimeReshading> {
-    cases
-        .iter()
-        .rev()
-        .filter(|c| c.board == board)
-        .find_map(|c| {
-            let enc = c.stage("reshade encoder")?.time?;
-            let dec = c.stage("reshade decoder × views")?.time?;
-            Some(RuntimeReshading {
-                ms: enc.median_ms + dec.median_ms,
-                candidate_ms: c.candidate_reshading.map(|s| s.median_ms),
-                photo: c.photo.clone(),
-                work_size: c.work_size,
-            })
-        })
 }
 
 /// Median/min/max per stage over runs, in [`report::STAGES`] order; `None` rows are

@@ -11,7 +11,7 @@ use crate::depth::net::{network_depth, StageOptions};
 use crate::io::photo::{Photo, SrgbImage};
 use crate::pipeline::Fitted;
 use crate::relocate::reach_of;
-use crate::reshade::net::cli::Head;
+use crate::reshade::net::choice::Head;
 use crate::reshade::net::NetReshader;
 use crate::reshade::TrainingFrame;
 use crate::views::{robust_focus, robust_range, ViewCamera, ViewRig};

@@ -1,5 +1,7 @@
 //! Unit tests of `eval::bench`, beside it so that the module file holds the code only.
 
+use super::compare::padded;
+use super::models::reshade_manifests;
 use super::*;
 
 #[test]
@@ -8,13 +10,6 @@ fn vm_hwm_is_read_in_mib() {
     assert_eq!(memory::parse_vm_hwm(status), Some(2.0));
     assert_eq!(memory::parse_vm_hwm("VmRSS: 1 kB"), None);
     assert!(memory::vm_hwm_mib().is_some_and(|m| m > 0.0));
-}
-
-#[test]
-fn sizes_parse_and_reject_nonsense() {
-    assert_eq!(parse_size("4000x3000"), Ok((4000, 3000)));
-    assert!(parse_size("4000").is_err());
-    assert!(parse_size("8x8").is_err());
 }
 
 fn names(paths: &[PathBuf]) -> Vec<String> {

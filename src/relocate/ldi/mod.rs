@@ -26,24 +26,27 @@ use crate::views::{Intrinsics, ViewCamera};
 use render::Origin;
 
 /// What the view shows beyond the photo's borders.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Border {
     /// The border pixels are stretched outwards far enough that no view sees past them;
     /// the framing of the zero-parallax plane is exactly the input's.
+    #[default]
     Extend,
     /// Every view is magnified about its centre by the same factor, enough that the
     /// border never enters the frame; nothing is invented, the framing is slightly tighter.
     Crop,
 }
 
+impl crate::io::keyword::Keyword for Border {
+    const ALL: &'static [(Self, &'static str)] =
+        &[(Border::Extend, "extend"), (Border::Crop, "crop")];
+}
+
 /// The name `--border` takes.
 impl std::fmt::Display for Border {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(match self {
-            Self::Extend => "extend",
-            Self::Crop => "crop",
-        })
+        f.write_str(crate::io::keyword::Keyword::keyword(*self))
     }
 }
 

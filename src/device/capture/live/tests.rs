@@ -18,11 +18,3 @@ fn cover_resize_crops_to_the_target_aspect() {
     assert_eq!(out.get_pixel(1, 1).0, [0, 0, 255]);
     assert_eq!(cover_resize(&image, 4, 1).dimensions(), (4, 1));
 }
-
-#[test]
-fn sizes_parse() {
-    assert_eq!(parse_size("640x480"), Ok((640, 480)));
-    assert!(parse_size("640").is_err());
-    assert!(parse_size("0x480").is_err());
-    assert!(parse_size("99999x480").is_err());
-}

@@ -1,5 +1,4 @@
-//! Command-line options that choose and tune the reshading network, shared by every
-//! subcommand that reshades (flattened into their clap arguments).
+//! Which reshading network a command loads, and its one constructor.
 
 use std::path::{Path, PathBuf};
 
@@ -10,55 +9,53 @@ use crate::reshade::{IdentityReshader, Reshader};
 use super::lobes::{heads_in, LobeReshader};
 use super::{NetError, NetOptions, NetReshader};
 
-/// Where the shipped reshading models live, relative to the working directory or the
-/// source tree the binary was built from.
-pub const DEFAULT_MODEL_DIR: &str = "models/reshade";
+/// The kind of model folder the shipped reshading models are in (`models/reshade`, found
+/// at run time by [`crate::engine::locate`]).
+pub const SHIPPED_KIND: &str = "reshade";
 
-#[derive(Clone, Debug, clap::Args)]
-pub struct ReshadeArgs {
-    /// Reshading model: a manifest (.json; the single graph, or either half of an
-    /// encoder/decoder pair) or a directory of them, or `none` to keep the photo's
-    /// shading. Default: models/reshade, or $RESHADER_MODEL.
-    #[arg(long)]
+/// Which reshading network to load and how to run it: what the reshading options of
+/// every command that reshades describe.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ReshadeConfig {
+    /// A manifest (the single graph, or either half of an encoder/decoder pair), a folder
+    /// of them, or `none`; `None`: `$RESHADER_MODEL`, else the shipped folder.
     pub model: Option<PathBuf>,
-    /// Model precision to load: int8 (the default for a model directory: a quarter of
-    /// fp32's weight bytes, at about fp32's speed in tract, which turns the int8
-    /// weights into f32 once at load), fp32 or fp16. A --model manifest file is loaded at
-    /// its own precision unless this is given. The model must have been exported at that
-    /// precision; fp16 weights are computed in f32 on CPUs without fp16 arithmetic.
-    #[arg(long, value_parser = parse_precision)]
+    /// `None`: a manifest file's own precision, int8 for a folder.
     pub precision: Option<Precision>,
-    /// Inference engine: tract (built in), or ort (onnxruntime from $ORT_DYLIB_PATH; needs
-    /// a build with --features ort).
-    #[arg(long, default_value = "tract")]
+    /// `tract`, or `ort` (a build with the `ort` feature).
     pub engine: String,
-    /// Working resolution of the network as a fraction of the photo's; the predicted
-    /// residual is upsampled to full resolution.
-    #[arg(long, default_value_t = 1.0)]
-    pub reshade_scale: f64,
-    /// Run the network for this many views and interpolate the residual for the others
-    /// (default: every view).
-    #[arg(long)]
+    /// Working resolution as a fraction of the photo's.
+    pub scale: f64,
+    /// Views the network runs for; the others interpolate (`None`: every view).
     pub key_views: Option<usize>,
     /// Views per decoder call.
-    #[arg(long, default_value_t = 1)]
-    pub reshade_batch: usize,
-    /// Views decoded at the same time, each on its own thread (the engine then uses
-    /// --reshade-threads / this many threads per view).
-    #[arg(long, default_value_t = 1)]
+    pub batch: usize,
+    /// Views decoded at once, each on its own thread.
     pub parallel_views: usize,
-    /// Threads for reshading (default: every core).
-    #[arg(long)]
-    pub reshade_threads: Option<usize>,
-    /// Reshading head: residual (the paper's network, run per view) or lobes (a network
-    /// run once per photo and a closed form per view). Default: a --model manifest's own
-    /// head; for a directory, residual when it holds residual-head models, else lobes.
-    #[arg(long, value_enum)]
+    /// `None`: every core.
+    pub threads: Option<usize>,
+    /// `None`: the model's own head (see [`ReshadeConfig::head_for`]).
     pub head: Option<Head>,
 }
 
+impl Default for ReshadeConfig {
+    fn default() -> Self {
+        Self {
+            model: None,
+            precision: None,
+            engine: "tract".into(),
+            scale: 1.0,
+            key_views: None,
+            batch: 1,
+            parallel_views: 1,
+            threads: None,
+            head: None,
+        }
+    }
+}
+
 /// The two reshading heads a model can have; its manifest's task says which.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Head {
     /// The paper's residual network (tasks reshade, reshade-encoder, reshade-decoder).
     Residual,
@@ -66,26 +63,24 @@ pub enum Head {
     Lobes,
 }
 
+impl crate::io::keyword::Keyword for Head {
+    const ALL: &'static [(Self, &'static str)] =
+        &[(Head::Residual, "residual"), (Head::Lobes, "lobes")];
+}
+
 impl std::fmt::Display for Head {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(match self {
-            Head::Residual => "residual",
-            Head::Lobes => "lobes",
-        })
+        f.write_str(crate::io::keyword::Keyword::keyword(*self))
     }
 }
 
 /// The head a model directory holding both kinds is loaded with when --head is not given.
 pub const DEFAULT_HEAD: Head = Head::Residual;
 
-fn parse_precision(s: &str) -> Result<Precision, String> {
-    s.parse()
-}
-
 /// The precision a model directory is searched for when `--precision` is not given.
 pub const DEFAULT_PRECISION: Precision = Precision::Int8;
 
-impl ReshadeArgs {
+impl ReshadeConfig {
     /// `--precision`, else the precision of the manifest file `model` names, else int8.
     pub fn precision_for(&self, model: Option<&Path>) -> Precision {
         self.precision.unwrap_or_else(|| {
@@ -124,9 +119,9 @@ impl ReshadeArgs {
 
     pub fn options(&self) -> NetOptions {
         NetOptions {
-            scale: self.reshade_scale,
+            scale: self.scale,
             key_views: self.key_views,
-            batch: self.reshade_batch,
+            batch: self.batch,
             parallel_views: self.parallel_views,
             max_offset: None,
         }
@@ -149,14 +144,15 @@ impl ReshadeArgs {
                 Some(dir) => dir,
                 None => {
                     log::warn!(
-                        "no reshading model at {DEFAULT_MODEL_DIR} (pass --model): views keep the photo's shading"
+                        "no reshading model in models/reshade (looked in {}; pass --model): views keep the photo's shading",
+                        shipped_places()
                     );
                     return Ok(Box::new(IdentityReshader));
                 }
             },
         };
         let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
-        let threads = self.reshade_threads.unwrap_or(cores);
+        let threads = self.threads.unwrap_or(cores);
         let precision = self.precision_for(Some(&path));
         let net: Box<dyn Reshader + Send + Sync> = match self.head_for(&path)? {
             Head::Residual => {
@@ -180,11 +176,15 @@ impl ReshadeArgs {
     }
 }
 
-fn default_model_dir() -> Option<PathBuf> {
-    [
-        PathBuf::from(DEFAULT_MODEL_DIR),
-        Path::new(env!("CARGO_MANIFEST_DIR")).join(DEFAULT_MODEL_DIR),
-    ]
-    .into_iter()
-    .find(|p| p.is_dir())
+/// The shipped reshading models' folder, if there is one.
+pub fn default_model_dir() -> Option<PathBuf> {
+    crate::engine::locate::model_dir(SHIPPED_KIND)
+}
+
+fn shipped_places() -> String {
+    crate::engine::locate::model_dirs(SHIPPED_KIND)
+        .iter()
+        .map(|d| d.display().to_string())
+        .collect::<Vec<_>>()
+        .join(", ")
 }

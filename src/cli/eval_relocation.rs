@@ -1,0 +1,70 @@
+//! `reshader eval-relocation`: the relocation methods scored against rendered novel views.
+
+use std::path::PathBuf;
+
+use anyhow::Result;
+use clap::Args;
+
+use reshader::eval::relocation::{run, EvalConfig};
+use reshader::relocate::ldi::Border;
+
+use crate::args::{keyword, ReshadeArgs};
+
+pub const EVAL_ABOUT: &str = "\
+Score the relocation methods against ground-truth novel views rendered by the dataset
+renderer (models/train: one folder per example with input.exr, reshaded.exr, novel.exr,
+depth.exr, mask.png, meta.json), using the ground-truth depth: the input unmoved, the
+first mesh warp and the layered depth image, each with the input's colours and with the
+rendered reshaded colours. Prints mean PSNR / SSIM over valid pixels, pixels visible in
+the input and the disoccluded band (the paper's Table 1 for our relocators), and the
+LDI's build and per-view render times.
+
+Example:
+  reshader eval-relocation data/reshade/val --sheets sheets/ --json eval.json";
+
+/// `reshader eval-relocation`'s arguments.
+#[derive(Clone, Debug, Args)]
+pub struct EvalArgs {
+    /// Dataset split folder, e.g. data/reshade/val.
+    pub data: PathBuf,
+    /// Evaluate at most this many examples (in name order).
+    #[arg(long)]
+    pub limit: Option<usize>,
+    #[arg(long, default_value_t = 5.5)]
+    pub exposure: f32,
+    #[arg(long, default_value_t = 2.2)]
+    pub gamma: f32,
+    /// What the LDI shows beyond the photo's borders (as `render --border`).
+    #[arg(long, value_parser = keyword::<Border>(), default_value = "extend")]
+    pub border: Border,
+    /// Also write the per-example numbers as JSON here.
+    #[arg(long)]
+    pub json: Option<PathBuf>,
+    /// Write contact sheets here, one PNG per example: top row relocation alone (input |
+    /// mesh-warp | ldi | ground-truth novel view), bottom row the same with the
+    /// ground-truth reshaded colours (reshaded input | mesh-warp | ldi | disoccluded band
+    /// in magenta over the LDI view).
+    #[arg(long)]
+    pub sheets: Option<PathBuf>,
+    /// The reshading model whose colours the LDI also relocates (`--model none`: the
+    /// input's, which repeats the relocation-alone row).
+    #[command(flatten)]
+    pub reshade: ReshadeArgs,
+}
+
+/// Runs `reshader eval-relocation` and prints the table.
+pub fn eval_relocation(args: &EvalArgs) -> Result<()> {
+    let config = EvalConfig {
+        data: args.data.clone(),
+        limit: args.limit,
+        exposure: args.exposure,
+        gamma: args.gamma,
+        border: args.border,
+        json: args.json.clone(),
+        sheets: args.sheets.clone(),
+        reshade: args.reshade.config(),
+    };
+    let (_, table) = run(&config)?;
+    println!("{table}");
+    Ok(())
+}

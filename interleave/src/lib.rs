@@ -13,13 +13,15 @@
 pub mod board;
 pub mod cells;
 pub mod filter;
+pub mod lens;
 pub mod mapping;
 pub mod quilt;
 pub mod weave;
 
-pub use board::{Board, BoardError, Calibration, Lens, LookingGlass, SubpixelLayout, VanBerkel};
+pub use board::{Board, BoardError, Calibration};
 pub use cells::{CellPattern, SubpixelCell};
 pub use filter::{Blend, UnknownBlend, ViewFilter};
+pub use lens::{Lens, LookingGlass, SideBySide, SubpixelLayout, VanBerkel};
 pub use mapping::{LensPhase, Mapping};
 pub use quilt::{
     make_quilt, quilt_file_name, side_by_side, split_quilt, QuiltLayout, QuiltLayoutError,

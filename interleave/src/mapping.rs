@@ -14,8 +14,8 @@
 //! [`LensPhase::looking_glass`] and [`LensPhase::van_berkel`] derive `a`, `b`, `d` from
 //! the two usual descriptions.
 
-use crate::board::{LookingGlass, SubpixelLayout, VanBerkel};
 use crate::cells::{CellPattern, SubpixelCell};
+use crate::lens::{LookingGlass, SubpixelLayout, VanBerkel};
 
 /// Linear lens phase `a·k + b·y + d` (see the module docs).
 #[derive(Debug, Clone, Copy, PartialEq)]

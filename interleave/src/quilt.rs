@@ -2,6 +2,7 @@
 
 use image::{GenericImage, GenericImageView, RgbImage};
 
+use crate::board::Board;
 use crate::weave::WeaveError;
 
 /// Tiles views into a `cols`x`rows` quilt: view 0 bottom-left, then left to right, then
@@ -105,6 +106,24 @@ pub struct QuiltLayout {
     pub cols: u32,
     pub rows: u32,
     pub aspect: f32,
+}
+
+impl QuiltLayout {
+    /// The layout of `board`'s quilt, for its file's metadata.
+    pub fn of(board: &Board) -> Self {
+        let (cols, rows) = board.quilt_grid();
+        Self {
+            views: board.views(),
+            cols,
+            rows,
+            aspect: board.view_aspect(),
+        }
+    }
+
+    /// The Looking-Glass quilt file name for this grid and view aspect.
+    pub fn file_name(&self) -> String {
+        quilt_file_name(self.cols, self.rows, self.aspect)
+    }
 }
 
 /// The PNG text keywords of a quilt's layout.

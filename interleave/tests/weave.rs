@@ -286,7 +286,10 @@ fn portrait_quilt_has_the_looking_glass_layout() {
     assert_eq!(quilt.get_pixel(63, 35)[0], 20 * 7 + 5);
     assert_eq!(quilt.get_pixel(0, 29)[0], 20 * 8 + 5);
     assert_eq!(quilt.get_pixel(63, 0)[0], (20 * 47 + 5) as u8);
-    assert_eq!(board.quilt_file_name(), "quilt_qs8x6a0.75.png");
+    assert_eq!(
+        interleave::QuiltLayout::of(&board).file_name(),
+        "quilt_qs8x6a0.75.png"
+    );
 }
 
 proptest! {

@@ -28,10 +28,6 @@ use holes::{self as depth_holes, HolePolicy, Holes};
 pub const NEAR: f32 = 1.0;
 /// Depth given to the 2nd disparity percentile of a relative-disparity map.
 pub const FAR: f32 = 5.0;
-/// Relative disparity beyond the percentiles is clamped to this depth range, so that
-/// sky or a stray near pixel cannot produce infinite or negative depth.
-pub const MIN_DEPTH: f32 = 0.5;
-pub const MAX_DEPTH: f32 = 50.0;
 /// 16-bit PNG values are thousandths of a unit (millimetres for metric depth).
 pub const PNG_UNITS_PER_VALUE: f32 = 0.001;
 /// Depth and photo aspect ratios may differ this much (relative) before it is an error:
@@ -144,6 +140,65 @@ pub enum DepthKind {
 impl crate::io::keyword::Keyword for DepthKind {
     const ALL: &'static [(Self, &'static str)] =
         &[(Self::Depth, "depth"), (Self::Disparity, "disparity")];
+}
+
+/// The mapping from relative disparity to scene depth: the robust near end of the scene
+/// (the 98th disparity percentile) lands at `near`, the robust far end (2nd percentile)
+/// at `near + budget`, linearly in disparity; values beyond are clamped to
+/// [`near`/2, 10 × far] so that sky or a stray pixel cannot give infinite depth.
+/// The defaults (1 and 4) are the training data's subject range; a depth file read with
+/// `--depth-kind disparity` is mapped with them.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
+pub struct SceneScale {
+    pub near: f32,
+    pub budget: f32,
+}
+
+impl Default for SceneScale {
+    fn default() -> Self {
+        Self {
+            near: crate::depth::NEAR,
+            budget: crate::depth::FAR - crate::depth::NEAR,
+        }
+    }
+}
+
+impl SceneScale {
+    pub fn check(&self) -> Result<(), String> {
+        if !(self.near > 0.0 && self.near.is_finite()) {
+            return Err(format!("--near {} must be a positive depth", self.near));
+        }
+        if !(self.budget > 0.0 && self.budget.is_finite()) {
+            return Err(format!("--depth-budget {} must be positive", self.budget));
+        }
+        Ok(())
+    }
+
+    pub fn far(&self) -> f32 {
+        self.near + self.budget
+    }
+
+    /// Scene depth from relative disparity; also returns the percentiles used.
+    pub fn depth_from_disparity(
+        &self,
+        width: usize,
+        height: usize,
+        disparity: &[f32],
+    ) -> (DepthMap, [f32; 2]) {
+        let (mut lo, mut hi) = (percentile(disparity, 0.02), percentile(disparity, 0.98));
+        if hi <= lo {
+            lo = disparity.iter().copied().fold(f32::INFINITY, f32::min);
+            hi = disparity.iter().copied().fold(f32::NEG_INFINITY, f32::max);
+        }
+        let (d_far, d_near) = (1.0 / self.far(), 1.0 / self.near);
+        let (d_min, d_max) = (1.0 / (10.0 * self.far()), 2.0 / self.near);
+        let span = (hi - lo).max(f32::MIN_POSITIVE);
+        let data = disparity
+            .iter()
+            .map(|&v| 1.0 / (d_far + (v - lo) / span * (d_near - d_far)).clamp(d_min, d_max))
+            .collect();
+        (DepthMap::new(width, height, data), [lo, hi])
+    }
 }
 
 /// Scene depth per pixel, rows top to bottom.
@@ -278,25 +333,10 @@ impl DepthMap {
         Ok(Self::new(raw.width, raw.height, raw.values))
     }
 
-    /// Maps relative disparity affinely so that its 2nd/98th percentiles land at 1/FAR
-    /// and 1/NEAR, then inverts it (see the module docs). Returns the percentiles used.
+    /// Maps relative disparity with the default [`SceneScale`] (its 2nd/98th percentiles
+    /// land at [`FAR`] and [`NEAR`]). Returns the percentiles used.
     pub fn from_relative_disparity(raw: &RawMap) -> (Self, [f32; 2]) {
-        let (mut lo, mut hi) = (percentile(&raw.values, 0.02), percentile(&raw.values, 0.98));
-        if hi <= lo {
-            // Mostly constant with a few outliers: fall back to the full range.
-            lo = raw.values.iter().copied().fold(f32::INFINITY, f32::min);
-            hi = raw.values.iter().copied().fold(f32::NEG_INFINITY, f32::max);
-        }
-        let (d_far, d_near) = (1.0 / FAR, 1.0 / NEAR);
-        let data = raw
-            .values
-            .iter()
-            .map(|&v| {
-                let d = d_far + (v - lo) / (hi - lo) * (d_near - d_far);
-                1.0 / d.clamp(1.0 / MAX_DEPTH, 1.0 / MIN_DEPTH)
-            })
-            .collect();
-        (Self::new(raw.width, raw.height, data), [lo, hi])
+        SceneScale::default().depth_from_disparity(raw.width, raw.height, &raw.values)
     }
 
     pub fn range(&self) -> [f32; 2] {

@@ -14,6 +14,7 @@ mod fp16;
 mod int8;
 pub mod locate;
 pub mod manifest;
+pub mod resample;
 pub mod tract;
 
 #[cfg(feature = "ort")]

@@ -4,6 +4,8 @@
 
 pub mod preflight;
 pub mod progress;
+pub mod record;
+pub mod rgbd;
 pub mod sheet;
 mod write;
 
@@ -19,14 +21,14 @@ use crate::depth::{DepthError, DepthKind, DepthMap, DepthReport};
 use crate::io::output::{self, OutputError, Staging};
 use crate::io::photo::{Photo, PhotoError, SrgbImage};
 use crate::io::preview::PreviewError;
-use crate::io::record::{
-    DepthRecord, FileDepthRecord, FileRecord, Geometry, Inputs, PhotoRecord, RunRecord, Setting,
-    Timings, Versions,
-};
+use crate::io::record::{FileRecord, Timings};
 use crate::pipeline::progress::Progress;
 use crate::relocate::{self, PreparedRelocation, RelocateError, Relocator};
 use crate::reshade::{ReshadeError, Reshader, TrainingFrame, TRAINING_FOCUS, TRAINING_REACH};
 use crate::views::{robust_focus, robust_range, Intrinsics, ViewCamera, ViewError, ViewRig};
+use record::{
+    DepthRecord, FileDepthRecord, Geometry, Inputs, PhotoRecord, RunRecord, Setting, Versions,
+};
 
 use write::{
     board_record, commit_with_record, file_record, view_records, weave, write_products, write_rgbd,

@@ -6,9 +6,10 @@ use std::path::Path;
 use image::RgbImage;
 use interleave::{make_quilt, side_by_side, Board, WeaveError, Weaver};
 
+use super::record::{BoardRecord, RgbdRecord, RunRecord, ViewRecord};
 use crate::io::output::{self, Staging};
 use crate::io::preview;
-use crate::io::record::{BoardRecord, FileRecord, RgbdRecord, RunRecord, Timings, ViewRecord};
+use crate::io::record::{FileRecord, Timings};
 use crate::views::{Intrinsics, ViewCamera};
 
 use super::{Fitted, PipelineError, Product, RenderOptions};
@@ -25,9 +26,10 @@ pub(super) fn write_products(
     if opts.wants(Product::Quilt) {
         let (cols, rows) = board.quilt_grid();
         let quilt = t.time("quilt", || make_quilt(views, cols, rows))?;
-        let name = board.quilt_file_name();
+        let layout = interleave::QuiltLayout::of(board);
+        let name = layout.file_name();
         let bytes = t.time("encode", || {
-            crate::io::quilt_file::encode(&staging.final_path(&name), &quilt, &board.quilt_layout())
+            crate::io::quilt_file::encode(&staging.final_path(&name), &quilt, &layout)
         })?;
         t.time("write", || staging.write(&name, &bytes))?;
     }
@@ -94,7 +96,7 @@ pub(super) fn write_rgbd(
 ) -> Result<RgbdRecord, PipelineError> {
     const FILE: &str = "rgbd.png";
     let (image, span) = t.time("rgbd", || {
-        crate::io::rgbd::compose(&fitted.image, &fitted.depth)
+        super::rgbd::compose(&fitted.image, &fitted.depth)
     });
     let text = [
         (
@@ -106,7 +108,7 @@ pub(super) fn write_rgbd(
         ("Depthiness", depthiness.to_string()),
         ("Depth near", span.near.to_string()),
         ("Depth far", span.far.to_string()),
-        ("Depth encoding", crate::io::rgbd::ENCODING.to_string()),
+        ("Depth encoding", super::rgbd::ENCODING.to_string()),
     ];
     let bytes = t.time("encode", || {
         output::encode_png_with_text(&staging.final_path(FILE), &image, &text)
@@ -119,7 +121,7 @@ pub(super) fn write_rgbd(
         depthiness,
         depth_near: span.near,
         depth_far: span.far,
-        depth_encoding: crate::io::rgbd::ENCODING,
+        depth_encoding: super::rgbd::ENCODING,
     })
 }
 

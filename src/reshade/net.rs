@@ -12,7 +12,6 @@ pub mod choice;
 mod keys;
 pub mod lobes;
 mod models;
-pub mod resample;
 
 use models::find_models;
 pub use models::{is_residual, manifests_where};
@@ -24,6 +23,7 @@ use std::sync::{Arc, Mutex};
 
 use crate::depth::DepthMap;
 use crate::engine::manifest::{self, ManifestError, Precision, Task, VerifiedModel};
+use crate::engine::resample;
 use crate::engine::{Engine, EngineError, ModelSource, Plan, Tensor};
 use crate::io::photo::SrgbImage;
 use crate::reshade::{PreparedPhoto, ReshadeError, Reshader};

@@ -9,69 +9,11 @@ use crate::depth::embedded::{self as embedded_depth, Container, EmbeddedDepth, R
 use crate::depth::refine::{self as depth_refine, RefineOptions};
 use crate::depth::DepthMap;
 use crate::engine::manifest::Precision;
+use crate::engine::resample;
 use crate::io::record::FileRecord;
-use crate::reshade::net::resample;
 
 use super::{DepthNet, DepthNetError, OutputKind};
-use crate::depth::percentile;
-
-/// The mapping from relative disparity to scene depth: the robust near end of the scene
-/// (the 98th disparity percentile) lands at `near`, the robust far end (2nd percentile)
-/// at `near + budget`, linearly in disparity; values beyond are clamped to
-/// [`near`/2, 10 × far] so that sky or a stray pixel cannot give infinite depth.
-/// With the defaults (1 and 4) this is the spine's `--depth-kind disparity` mapping.
-#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
-pub struct SceneScale {
-    pub near: f32,
-    pub budget: f32,
-}
-
-impl Default for SceneScale {
-    fn default() -> Self {
-        Self {
-            near: crate::depth::NEAR,
-            budget: crate::depth::FAR - crate::depth::NEAR,
-        }
-    }
-}
-
-impl SceneScale {
-    pub fn check(&self) -> Result<(), String> {
-        if !(self.near > 0.0 && self.near.is_finite()) {
-            return Err(format!("--near {} must be a positive depth", self.near));
-        }
-        if !(self.budget > 0.0 && self.budget.is_finite()) {
-            return Err(format!("--depth-budget {} must be positive", self.budget));
-        }
-        Ok(())
-    }
-
-    pub fn far(&self) -> f32 {
-        self.near + self.budget
-    }
-
-    /// Scene depth from relative disparity; also returns the percentiles used.
-    pub fn depth_from_disparity(
-        &self,
-        width: usize,
-        height: usize,
-        disparity: &[f32],
-    ) -> (DepthMap, [f32; 2]) {
-        let (mut lo, mut hi) = (percentile(disparity, 0.02), percentile(disparity, 0.98));
-        if hi <= lo {
-            lo = disparity.iter().copied().fold(f32::INFINITY, f32::min);
-            hi = disparity.iter().copied().fold(f32::NEG_INFINITY, f32::max);
-        }
-        let (d_far, d_near) = (1.0 / self.far(), 1.0 / self.near);
-        let (d_min, d_max) = (1.0 / (10.0 * self.far()), 2.0 / self.near);
-        let span = (hi - lo).max(f32::MIN_POSITIVE);
-        let data = disparity
-            .iter()
-            .map(|&v| 1.0 / (d_far + (v - lo) / span * (d_near - d_far)).clamp(d_min, d_max))
-            .collect();
-        (DepthMap::new(width, height, data), [lo, hi])
-    }
-}
+pub use crate::depth::SceneScale;
 
 /// How depth is estimated when no depth file is given: what the depth options of every
 /// command that estimates depth describe.

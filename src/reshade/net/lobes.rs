@@ -33,15 +33,14 @@ use crate::depth::DepthMap;
 use crate::engine::manifest::{
     self, LobeSpec, ManifestError, Precision, Task, VerifiedModel, LOBE_LAYOUT,
 };
+use crate::engine::resample;
 use crate::engine::{Engine, ModelSource, Plan, Tensor};
 use crate::io::photo::SrgbImage;
 use crate::reshade::{PreparedPhoto, ReshadeError, Reshader};
 use crate::views::Intrinsics;
 
 use super::models::{other_head, other_precisions};
-use super::{
-    disparity, is_residual, manifests_where, planar, resample, round_up, NetError, NetOptions,
-};
+use super::{disparity, is_residual, manifests_where, planar, round_up, NetError, NetOptions};
 
 /// Channels of one lobe in the graph's output (mu_x, mu_y, mu_z, sharpness, amp_r, amp_g,
 /// amp_b).

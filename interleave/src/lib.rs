@@ -11,14 +11,17 @@
 //! See `README.md` beside this crate for the mapping's derivation and the board format.
 
 pub mod board;
+pub mod calibration;
 pub mod cells;
 pub mod filter;
 pub mod lens;
 pub mod mapping;
 pub mod quilt;
+pub mod validate;
 pub mod weave;
 
-pub use board::{Board, BoardError, Calibration};
+pub use board::Board;
+pub use calibration::Calibration;
 pub use cells::{CellPattern, SubpixelCell};
 pub use filter::{Blend, UnknownBlend, ViewFilter};
 pub use lens::{Lens, LookingGlass, SideBySide, SubpixelLayout, VanBerkel};
@@ -26,4 +29,5 @@ pub use mapping::{LensPhase, Mapping};
 pub use quilt::{
     make_quilt, quilt_file_name, side_by_side, split_quilt, QuiltLayout, QuiltLayoutError,
 };
+pub use validate::BoardError;
 pub use weave::{WeaveError, Weaver};

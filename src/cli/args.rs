@@ -74,10 +74,7 @@ impl SceneArgs {
                  with --depth FILE"
             )),
             DepthInput::Estimate(source) => Ok(SceneDepth::Estimate(Arc::new(
-                self.estimate
-                    .config()
-                    .estimator(*source)
-                    .map_err(anyhow::Error::msg)?,
+                self.estimate.config().estimator(*source)?,
             ))),
         }
     }

@@ -57,11 +57,7 @@ pub fn depth(args: &DepthArgs) -> Result<()> {
             "",
         )?;
     }
-    let estimator = args
-        .stage
-        .config(args.precision)
-        .estimator(args.depth)
-        .map_err(anyhow::Error::msg)?;
+    let estimator = args.stage.config(args.precision).estimator(args.depth)?;
     let (map, report) = write_depth_file(&estimator, &args.photo, &args.out)?;
     log::info!(
         "depth stage: {}",

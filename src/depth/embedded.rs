@@ -48,6 +48,10 @@ pub enum EmbeddedError {
         path: PathBuf,
         source: crate::io::limits::TooLarge,
     },
+    #[error("{path} carries no embedded depth (GDepth or Dynamic Depth)")]
+    Missing { path: PathBuf },
+    #[error("{path}: {problem}")]
+    Unfit { path: PathBuf, problem: String },
 }
 
 /// Which of the two forms the depth came in.

@@ -62,8 +62,8 @@ pub enum DepthNetError {
         height: u32,
         problem: String,
     },
-    #[error("{0}")]
-    Embedded(String),
+    #[error(transparent)]
+    Embedded(#[from] crate::depth::embedded::EmbeddedError),
     #[error(
         "no depth model found: looked for {tried}; pass --depth-model FILE (an .onnx with its \
          .json manifest beside it, or the manifest) or --depth FILE"
@@ -389,15 +389,15 @@ impl DepthEstimator {
                     return Ok(result);
                 }
                 (Ok(None), DepthSource::Embedded) => {
-                    return Err(DepthNetError::Embedded(format!(
-                        "{} carries no embedded depth (GDepth or Dynamic Depth)",
-                        photo_path.display()
-                    )))
+                    return Err(embedded_depth::EmbeddedError::Missing {
+                        path: photo_path.into(),
+                    }
+                    .into())
                 }
-                (Err(e), DepthSource::Embedded) => return Err(DepthNetError::Embedded(e)),
+                (Err(e), DepthSource::Embedded) => return Err(e.into()),
                 (Err(e), _) => {
                     log::warn!("{e}; estimating depth with the network instead");
-                    embedded_error = Some(e);
+                    embedded_error = Some(e.to_string());
                 }
                 (Ok(None), _) => {}
             }
@@ -412,13 +412,16 @@ impl DepthEstimator {
         &self,
         photo_path: &Path,
         photo: &RgbImage,
-    ) -> Result<Option<(DepthMap, StageReport)>, String> {
-        let Some(found) = embedded_depth::read(photo_path).map_err(|e| e.to_string())? else {
+    ) -> Result<Option<(DepthMap, StageReport)>, embedded_depth::EmbeddedError> {
+        let Some(found) = embedded_depth::read(photo_path)? else {
             return Ok(None);
         };
         embedded_scene_depth(&found, photo, &self.opts)
             .map(Some)
-            .map_err(|e| format!("{}: {e}", photo_path.display()))
+            .map_err(|problem| embedded_depth::EmbeddedError::Unfit {
+                path: photo_path.into(),
+                problem,
+            })
     }
 }
 

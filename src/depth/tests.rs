@@ -1,6 +1,7 @@
 //! Unit tests of `depth`, beside it so that the module file holds the code only.
 
 use super::*;
+use crate::io::npy;
 
 fn write(dir: &Path, name: &str, bytes: &[u8]) -> PathBuf {
     let path = dir.join(name);

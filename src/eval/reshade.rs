@@ -19,6 +19,19 @@ use crate::reshade::net::lobes::LobeReshader;
 use crate::reshade::net::{NetOptions, NetReshader};
 use crate::views::{Intrinsics, ViewRig};
 
+/// Why the reshading benchmark could not run (a row that fails is reported in its table).
+#[derive(Debug, thiserror::Error)]
+pub enum ReshadeBenchError {
+    #[error("reshading model: {0}")]
+    Net(#[from] crate::reshade::net::NetError),
+    #[error(transparent)]
+    Engine(#[from] crate::engine::EngineError),
+    #[error(transparent)]
+    Reshade(#[from] crate::reshade::ReshadeError),
+    #[error(transparent)]
+    View(#[from] crate::views::ViewError),
+}
+
 /// Horizontal field of view of the test scene's camera (the lobe head needs its rays).
 pub const TEST_SCENE_HFOV_DEG: f64 = 60.0;
 
@@ -52,41 +65,6 @@ impl Default for BenchConfig {
             timed_views: 8,
             lobes_model: None,
         }
-    }
-}
-
-impl BenchConfig {
-    /// Parses `--model P --size WxH --views N --cone DEG --threads N --engines a,b
-    /// --precisions a,b --timed-views N --lobes-model P`.
-    pub fn from_args(args: &[String]) -> Result<Self, String> {
-        let mut c = Self::default();
-        let mut it = args.iter();
-        while let Some(flag) = it.next() {
-            if flag == "--bench" {
-                continue;
-            }
-            let value = it.next().ok_or_else(|| format!("{flag} needs a value"))?;
-            let num = |v: &str| v.parse::<usize>().map_err(|e| format!("{flag} {v}: {e}"));
-            match flag.as_str() {
-                "--model" => c.model = PathBuf::from(value),
-                "--lobes-model" => c.lobes_model = Some(PathBuf::from(value)),
-                "--size" => {
-                    let (w, h) = value.split_once('x').ok_or("--size wants WxH")?;
-                    c.width = num(w)? as u32;
-                    c.height = num(h)? as u32;
-                }
-                "--views" => c.views = num(value)?,
-                "--timed-views" => c.timed_views = num(value)?,
-                "--threads" => c.threads = num(value)?,
-                "--cone" => c.cone_deg = value.parse().map_err(|e| format!("--cone: {e}"))?,
-                "--engines" => c.engines = value.split(',').map(str::to_owned).collect(),
-                "--precisions" => {
-                    c.precisions = value.split(',').map(str::parse).collect::<Result<_, _>>()?;
-                }
-                _ => return Err(format!("unknown option {flag}")),
-            }
-        }
-        Ok(c)
     }
 }
 
@@ -225,17 +203,16 @@ fn time_views(
     image: &SrgbImage,
     depth: &DepthMap,
     centres: &[[f64; 3]],
-) -> Result<Timed, String> {
+) -> Result<Timed, ReshadeBenchError> {
     // Warm-up: plans are built (and cached) outside the timed region.
-    let warm = net.prepare_photo(image, depth).map_err(|e| e.to_string())?;
-    warm.reshade_views(&centres[..centres.len().min(net.options().batch.max(1) * 2)])
-        .map_err(|e| e.to_string())?;
+    let warm = net.prepare_photo(image, depth)?;
+    warm.reshade_views(&centres[..centres.len().min(net.options().batch.max(1) * 2)])?;
     drop(warm);
     let started = Instant::now();
-    let prepared = net.prepare_photo(image, depth).map_err(|e| e.to_string())?;
+    let prepared = net.prepare_photo(image, depth)?;
     let encoder_ms = started.elapsed().as_secs_f64() * 1e3;
     let started = Instant::now();
-    let views = prepared.reshade_views(centres).map_err(|e| e.to_string())?;
+    let views = prepared.reshade_views(centres)?;
     let per_view_ms = started.elapsed().as_secs_f64() * 1e3 / centres.len() as f64;
     Ok(Timed {
         encoder_ms,
@@ -249,8 +226,13 @@ fn load(
     engine: &Arc<dyn Engine>,
     precision: Precision,
     options: NetOptions,
-) -> Result<NetReshader, String> {
-    NetReshader::load(&config.model, precision, engine.clone(), options).map_err(|e| e.to_string())
+) -> Result<NetReshader, ReshadeBenchError> {
+    Ok(NetReshader::load(
+        &config.model,
+        precision,
+        engine.clone(),
+        options,
+    )?)
 }
 
 /// The lobe-head model to time: `--lobes-model`, else `--model` when it is a lobe-head
@@ -281,24 +263,19 @@ fn time_lobe_views(
     image: &SrgbImage,
     depth: &DepthMap,
     centres: &[[f64; 3]],
-) -> Result<Timed, String> {
+) -> Result<Timed, ReshadeBenchError> {
     let camera = Intrinsics::from_hfov(image.width(), image.height(), TEST_SCENE_HFOV_DEG);
-    let warm = net
-        .prepare_photo(image, depth, &camera)
-        .map_err(|e| e.to_string())?;
-    warm.reshade_view(centres[0]).map_err(|e| e.to_string())?;
+    let warm = net.prepare_photo(image, depth, &camera)?;
+    warm.reshade_view(centres[0])?;
     drop(warm);
     let started = Instant::now();
-    let prepared = net
-        .prepare_photo(image, depth, &camera)
-        .map_err(|e| e.to_string())?;
+    let prepared = net.prepare_photo(image, depth, &camera)?;
     let encoder_ms = started.elapsed().as_secs_f64() * 1e3;
     let started = Instant::now();
     let views = centres
         .iter()
         .map(|&c| prepared.reshade_view(c))
-        .collect::<Result<Vec<_>, _>>()
-        .map_err(|e| e.to_string())?;
+        .collect::<Result<Vec<_>, _>>()?;
     let per_view_ms = started.elapsed().as_secs_f64() * 1e3 / centres.len() as f64;
     Ok(Timed {
         encoder_ms,
@@ -308,9 +285,9 @@ fn time_lobe_views(
 }
 
 /// Runs the benchmark and returns its report as Markdown.
-pub fn run(config: &BenchConfig) -> Result<String, String> {
+pub fn run(config: &BenchConfig) -> Result<String, ReshadeBenchError> {
     let (image, depth) = test_scene(config.width, config.height);
-    let rig = ViewRig::new(config.views, config.cone_deg, 2.0, 1.0).map_err(|e| e.to_string())?;
+    let rig = ViewRig::new(config.views, config.cone_deg, 2.0, 1.0)?;
     let centres: Vec<[f64; 3]> = rig.offsets().into_iter().map(|x| [x, 0.0, 0.0]).collect();
     let timed = &centres[..config.timed_views.min(centres.len())];
     let mut out = String::new();
@@ -340,7 +317,7 @@ fn precision_table(
     depth: &DepthMap,
     centres: &[[f64; 3]],
     out: &mut String,
-) -> Result<(), String> {
+) -> Result<(), ReshadeBenchError> {
     let _ = writeln!(
         out,
         "| engine | precision | encoder ms | decoder ms/view | decoder GFLOP/s | ms/view vs ort |\n|---|---|---|---|---|---|"
@@ -349,7 +326,7 @@ fn precision_table(
     let mut rows = Vec::new();
     let residual = !is_lobes_manifest(&config.model);
     for name in config.engines.iter().filter(|_| residual) {
-        let engine = engine::by_name(name, config.threads).map_err(|e| e.to_string())?;
+        let engine = engine::by_name(name, config.threads)?;
         for &precision in &config.precisions {
             let net = match load(config, &engine, precision, NetOptions::default()) {
                 Ok(net) => net,
@@ -408,9 +385,9 @@ fn lobe_rows(
     depth: &DepthMap,
     centres: &[[f64; 3]],
     rows: &mut Vec<String>,
-) -> Result<(), String> {
+) -> Result<(), ReshadeBenchError> {
     for name in &config.engines {
-        let engine = engine::by_name(name, config.threads).map_err(|e| e.to_string())?;
+        let engine = engine::by_name(name, config.threads)?;
         for &precision in &config.precisions {
             let has_precision = !model.is_dir()
                 || crate::reshade::net::manifests_where(model, Some(precision), |t| {
@@ -421,7 +398,7 @@ fn lobe_rows(
                 continue;
             }
             let timed = LobeReshader::load(model, precision, engine.clone(), NetOptions::default())
-                .map_err(|e| e.to_string())
+                .map_err(ReshadeBenchError::from)
                 .and_then(|net| time_lobe_views(&net, image, depth, centres));
             rows.push(match timed {
                 Ok(t) => format!(
@@ -460,15 +437,13 @@ fn profile_table(
     image: &SrgbImage,
     depth: &DepthMap,
     out: &mut String,
-) -> Result<(), String> {
+) -> Result<(), ReshadeBenchError> {
     let precision = config.precisions[0];
     let tract = engine::tract::TractEngine::new(config.threads);
     let engine: Arc<dyn Engine> = Arc::new(engine::tract::TractEngine::new(config.threads));
     let net = load(config, &engine, precision, NetOptions::default())?;
-    let prepared = net.prepare_photo(image, depth).map_err(|e| e.to_string())?;
-    let ops = prepared
-        .profile(&tract, [0.2, 0.0, 0.0])
-        .map_err(|e| e.to_string())?;
+    let prepared = net.prepare_photo(image, depth)?;
+    let ops = prepared.profile(&tract, [0.2, 0.0, 0.0])?;
     let total: f64 = ops.iter().map(|(_, ms)| ms).sum();
     let _ = writeln!(
         out,
@@ -487,7 +462,7 @@ fn options_table(
     depth: &DepthMap,
     centres: &[[f64; 3]],
     out: &mut String,
-) -> Result<(), String> {
+) -> Result<(), ReshadeBenchError> {
     let precision = config.precisions[0];
     let threaded: Arc<dyn Engine> = Arc::new(engine::tract::TractEngine::new(config.threads));
     let single: Arc<dyn Engine> = Arc::new(engine::tract::TractEngine::new(1));

@@ -201,10 +201,7 @@ impl Scene {
     }
 
     pub fn focus(&self, requested: Option<f64>) -> (f64, Setting) {
-        match requested {
-            Some(f) => (f, Setting::CommandLine),
-            None => (robust_focus(&self.depth), Setting::RobustMiddleDepth),
-        }
+        focus_of(&self.depth, requested)
     }
 
     /// Shrinks the photo when it has more pixels than views of `width`×`height` can
@@ -318,9 +315,8 @@ pub fn render(
         shading,
         shading_source,
     } = BoardRig::new(
-        &scene,
         board,
-        &fitted,
+        (&scene.depth, &fitted.reference),
         (opts.focus, opts.depthiness),
         opts.shading_depthiness,
     )?;
@@ -332,7 +328,7 @@ pub fn render(
         &fitted,
         (&cameras, &shading_centres),
         frame,
-        reshader,
+        Some(reshader),
         relocator,
         progress,
         &mut t,
@@ -383,6 +379,14 @@ pub fn render(
     record
 }
 
+/// The zero-parallax depth: the one requested, else the depth's robust middle.
+pub fn focus_of(depth: &DepthMap, requested: Option<f64>) -> (f64, Setting) {
+    match requested {
+        Some(f) => (f, Setting::CommandLine),
+        None => (robust_focus(depth), Setting::RobustMiddleDepth),
+    }
+}
+
 /// A board's view rig for a scene, as `render` chooses it: the zero-parallax depth and
 /// the depthiness given, else the robust middle depth and the parallax budget's; and the
 /// cameras each view is reshaded for.
@@ -403,24 +407,37 @@ pub struct BoardRig {
 }
 
 impl BoardRig {
+    /// The rigs of `board`'s views for a scene of `depth` (at the photo's resolution)
+    /// seen through `reference`, the unmoved camera at the views' size.
     pub fn new(
-        scene: &Scene,
         board: &Board,
-        fitted: &Fitted,
+        (depth, reference): (&DepthMap, &Intrinsics),
+        focus_depthiness: (Option<f64>, Option<f64>),
+        shading_depthiness: Option<f64>,
+    ) -> Result<Self, ViewError> {
+        let cone = f64::from(board.view_cone_deg());
+        let views = (board.views(), cone);
+        Self::for_views(
+            views,
+            (depth, reference),
+            focus_depthiness,
+            shading_depthiness,
+        )
+    }
+
+    /// The rigs of `views` views over a cone of `cone` degrees (`live` has no board file
+    /// behind its frames, only the count and the cone).
+    pub fn for_views(
+        (views, cone): (usize, f64),
+        (depth, reference): (&DepthMap, &Intrinsics),
         (focus, depthiness): (Option<f64>, Option<f64>),
         shading_depthiness: Option<f64>,
-    ) -> Result<Self, PipelineError> {
-        let (focus, focus_source) = scene.focus(focus);
-        let cone = f64::from(board.view_cone_deg());
+    ) -> Result<Self, ViewError> {
+        let (focus, focus_source) = focus_of(depth, focus);
         let (depthiness, depthiness_source) = match depthiness {
             Some(d) => (d, Setting::CommandLine),
             None => (
-                ViewRig::fitting_depthiness(
-                    cone,
-                    focus,
-                    robust_range(&scene.depth),
-                    &fitted.reference,
-                ),
+                ViewRig::fitting_depthiness(cone, focus, robust_range(depth), reference),
                 Setting::ParallaxBudget,
             ),
         };
@@ -432,10 +449,10 @@ impl BoardRig {
             ),
         };
         Ok(Self {
-            rig: ViewRig::new(board.views(), cone, focus, depthiness)?,
+            rig: ViewRig::new(views, cone, focus, depthiness)?,
             focus_source,
             depthiness_source,
-            shading: ViewRig::new(board.views(), cone, focus, shading)?,
+            shading: ViewRig::new(views, cone, focus, shading)?,
             shading_source,
         })
     }
@@ -476,11 +493,13 @@ pub fn reshade_views<'a>(
     Ok((reshaded, relocation))
 }
 
-fn render_views(
+/// Every view: the photo reshaded for its shading camera (unless `reshader` is `None`,
+/// when the views keep the photo's colours), relocated to its camera.
+pub fn render_views(
     fitted: &Fitted,
     (cameras, shading): (&[ViewCamera], &[[f64; 3]]),
     frame: TrainingFrame,
-    reshader: &dyn Reshader,
+    reshader: Option<&dyn Reshader>,
     relocator: &dyn Relocator,
     progress: &Progress,
     t: &mut Timings,
@@ -488,12 +507,21 @@ fn render_views(
     // The network reshades all views in one call (key views and batches), so the bar
     // counts views as they are relocated.
     progress.set_message("reshading");
-    let (reshaded, relocation) =
-        reshade_views(fitted, (cameras, shading), frame, reshader, relocator, t)?;
+    let (reshaded, relocation) = match reshader {
+        Some(reshader) => reshade_views(fitted, (cameras, shading), frame, reshader, relocator, t)?,
+        None => {
+            let reach = relocate::reach_of(cameras.iter().map(|c| c.centre), &fitted.source);
+            let relocation = t.time("relocate_prepare", || {
+                relocator.prepare(&fitted.image, &fitted.depth, &fitted.source, reach)
+            })?;
+            (Vec::new(), relocation)
+        }
+    };
     progress.set_message("relocating");
     let mut views = Vec::with_capacity(cameras.len());
-    for (colours, camera) in reshaded.into_iter().zip(cameras) {
-        let view = t.time("relocate", || relocation.render(&colours, camera))?;
+    for (i, camera) in cameras.iter().enumerate() {
+        let colours = reshaded.get(i).unwrap_or(&fitted.image);
+        let view = t.time("relocate", || relocation.render(colours, camera))?;
         views.push(view.to_rgb8());
         progress.inc(1);
     }

@@ -44,7 +44,12 @@ pub fn outer_views(
 ) -> Result<Sheet, PipelineError> {
     let (vw, vh) = board.view_size();
     let fitted = scene.fitted(vw, vh);
-    let rigs = BoardRig::new(scene, board, &fitted, focus_depthiness, shading_depthiness)?;
+    let rigs = BoardRig::new(
+        board,
+        (&scene.depth, &fitted.reference),
+        focus_depthiness,
+        shading_depthiness,
+    )?;
     let cameras = rigs.rig.cameras(&fitted.reference);
     let shading = rigs.shading.centres();
     let last = cameras.len() - 1;

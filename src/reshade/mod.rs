@@ -22,8 +22,9 @@ pub const TRAINING_REACH: f64 = 0.3;
 
 #[derive(Debug, thiserror::Error)]
 pub enum ReshadeError {
+    /// The model's own error (a network reshader's `NetError`), its sources kept.
     #[error("reshading model failed: {0}")]
-    Model(String),
+    Model(#[source] Box<dyn std::error::Error + Send + Sync>),
 }
 
 pub trait Reshader {

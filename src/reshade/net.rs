@@ -43,7 +43,7 @@ pub enum NetError {
 
 impl From<NetError> for ReshadeError {
     fn from(e: NetError) -> Self {
-        ReshadeError::Model(e.to_string())
+        ReshadeError::Model(Box::new(e))
     }
 }
 

@@ -58,7 +58,7 @@ impl DepthConfig {
     }
 
     /// The stage options, checked.
-    pub fn options(&self) -> Result<StageOptions, String> {
+    pub fn options(&self) -> Result<StageOptions, crate::depth::ScaleError> {
         self.scale.check()?;
         Ok(StageOptions {
             scale: self.scale,
@@ -67,7 +67,10 @@ impl DepthConfig {
     }
 
     /// The estimator these settings describe; the network is loaded on first use.
-    pub fn estimator(&self, source: super::DepthSource) -> Result<super::DepthEstimator, String> {
+    pub fn estimator(
+        &self,
+        source: super::DepthSource,
+    ) -> Result<super::DepthEstimator, crate::depth::ScaleError> {
         Ok(super::DepthEstimator::new(
             source,
             self.net(),

@@ -27,10 +27,13 @@ use crate::depth::net::{self as depth_net, DepthNet, DepthNetError, StageOptions
 use crate::depth::DepthMap;
 use crate::device::display::{DisplayError, FrameSink};
 use crate::io::photo::SrgbImage;
-use crate::relocate::{self, RelocateError, Relocator};
+use crate::io::record::Timings;
+use crate::pipeline::progress::Progress;
+use crate::pipeline::{render_views, BoardRig, Fitted};
+use crate::relocate::{RelocateError, Relocator};
 use crate::reshade::net::NetError;
 use crate::reshade::{ReshadeError, Reshader, TrainingFrame};
-use crate::views::{robust_focus, robust_range, Intrinsics, ViewCamera, ViewError, ViewRig};
+use crate::views::{Intrinsics, ViewError};
 
 #[derive(Debug, thiserror::Error)]
 pub enum LiveError {
@@ -56,6 +59,10 @@ pub enum LiveError {
     Memory(#[from] crate::pipeline::preflight::OverBudget),
     #[error("{0}")]
     Options(String),
+    #[error(transparent)]
+    Scale(#[from] crate::depth::ScaleError),
+    #[error(transparent)]
+    Pipeline(#[from] crate::pipeline::PipelineError),
 }
 
 #[derive(Default)]
@@ -337,10 +344,8 @@ fn flat_views(work: &RgbImage, count: usize, views: &mut Vec<RgbImage>) {
     }
 }
 
-/// The views of one frame seen from the board's cameras, reshaded (with a model) and
-/// relocated with its depth: the same rig as `render` (zero-parallax plane at the robust
-/// middle depth, baseline fitted to the parallax budget), recomputed per frame because
-/// the depth changes.
+/// The views of a frame with depth, rendered as `render` renders a photo's: the same
+/// rigs (the views' and, wider, the reshading cameras'), reshading and relocation.
 fn relocated_views(
     work: &RgbImage,
     state: &DepthState,
@@ -350,47 +355,29 @@ fn relocated_views(
         .latest
         .as_ref()
         .expect("depth refreshed before the views");
-    let image = SrgbImage::from_rgb8(work);
     let source = Intrinsics::from_hfov(work.width(), work.height(), state.live.hfov_deg);
-    let reference = source.cover(work.width(), work.height());
-    let focus = robust_focus(depth);
-    let depthiness =
-        ViewRig::fitting_depthiness(state.cone, focus, robust_range(depth), &reference);
-    let cameras = ViewRig::new(count, state.cone, focus, depthiness)?.cameras(&reference);
-    let reach = relocate::reach_of(cameras.iter().map(|c| c.centre), &source);
-    let prepared = state
-        .live
-        .relocator
-        .prepare(&image, depth, &source, reach)?;
-    let reshaded = match &state.live.reshader {
-        Some(reshader) => reshade_views(&**reshader, &image, depth, &source, focus, &cameras)?,
-        None => Vec::new(),
+    let fitted = Fitted {
+        image: SrgbImage::from_rgb8(work),
+        depth: depth.clone(),
+        source,
+        reference: source.cover(work.width(), work.height()),
     };
-    cameras
-        .iter()
-        .enumerate()
-        .map(|(i, camera)| {
-            let colours = reshaded.get(i).unwrap_or(&image);
-            Ok(prepared.render(colours, camera)?.to_rgb8())
-        })
-        .collect()
-}
-
-/// The frame reshaded for every camera, as `render` does: in the training frame, where
-/// the focus depth is the training scenes'.
-fn reshade_views(
-    reshader: &dyn Reshader,
-    image: &SrgbImage,
-    depth: &DepthMap,
-    source: &Intrinsics,
-    focus: f64,
-    cameras: &[ViewCamera],
-) -> Result<Vec<SrgbImage>, LiveError> {
-    let frame = TrainingFrame::for_focus(focus);
-    let training_depth = frame.depth(depth);
-    let prepared = reshader.prepare(image, &training_depth, source)?;
-    let centres: Vec<[f64; 3]> = cameras.iter().map(|c| frame.camera(c.centre)).collect();
-    Ok(prepared.reshade_all(&centres)?)
+    let rigs = BoardRig::for_views(
+        (count, state.cone),
+        (depth, &fitted.reference),
+        (None, None),
+        None,
+    )?;
+    let cameras = rigs.rig.cameras(&fitted.reference);
+    Ok(render_views(
+        &fitted,
+        (&cameras, &rigs.shading.centres()),
+        TrainingFrame::for_focus(rigs.rig.focus),
+        state.live.reshader.as_deref().map(|r| r as &dyn Reshader),
+        &*state.live.relocator,
+        &Progress::hidden(),
+        &mut Timings::default(),
+    )?)
 }
 
 /// Scales `image` to cover `w`×`h` and crops the centre, keeping its aspect.

@@ -38,6 +38,9 @@ pub struct ConvertReport {
     pub timings_ms: BTreeMap<String, f64>,
 }
 
+/// Why a photo's conversion failed: the converter's own error, its sources kept.
+pub type ConvertError = Box<dyn std::error::Error + Send + Sync>;
+
 /// Turns one photo into outputs inside `out_dir`, writing them atomically.
 pub trait Converter {
     /// Describes every setting that changes the outputs (board, products, …); a photo
@@ -48,7 +51,7 @@ pub trait Converter {
     fn inputs(&self, _photo: &Path) -> Vec<PathBuf> {
         Vec::new()
     }
-    fn convert(&self, photo: &Path, out_dir: &Path) -> Result<ConvertReport, String>;
+    fn convert(&self, photo: &Path, out_dir: &Path) -> Result<ConvertReport, ConvertError>;
 }
 
 /// A [`Converter`] from a closure, for the CLI's pipeline and for tests.
@@ -61,7 +64,7 @@ pub struct FnConverter<F> {
 impl<F, E> FnConverter<F>
 where
     F: Fn(&Path, &Path) -> Result<ConvertReport, E>,
-    E: fmt::Display,
+    E: Into<ConvertError>,
 {
     pub fn new(fingerprint: impl Into<String>, convert: F) -> Self {
         Self {
@@ -81,7 +84,7 @@ where
 impl<F, E> Converter for FnConverter<F>
 where
     F: Fn(&Path, &Path) -> Result<ConvertReport, E>,
-    E: fmt::Display,
+    E: Into<ConvertError>,
 {
     fn fingerprint(&self) -> String {
         self.fingerprint.clone()
@@ -91,8 +94,8 @@ where
         (self.inputs)(photo)
     }
 
-    fn convert(&self, photo: &Path, out_dir: &Path) -> Result<ConvertReport, String> {
-        (self.convert)(photo, out_dir).map_err(|e| e.to_string())
+    fn convert(&self, photo: &Path, out_dir: &Path) -> Result<ConvertReport, ConvertError> {
+        (self.convert)(photo, out_dir).map_err(Into::into)
     }
 }
 
@@ -353,17 +356,19 @@ pub fn convert_one(
                 " while converting {}",
                 photo.display()
             ))
-            .to_string())
+            .to_string()
+            .into())
         }
         Err(panic) => Err(format!(
             "internal error while converting {}: {}",
             photo.display(),
             panic_message(&*panic)
-        )),
+        )
+        .into()),
     };
     let report = match result.and_then(|r| publish_marker(marker, out_dir, &marker_path, r)) {
         Ok(report) => report,
-        Err(e) => return PhotoReport::failed(photo, out_dir, e, ms(started)),
+        Err(e) => return PhotoReport::failed(photo, out_dir, e.to_string(), ms(started)),
     };
     let mut timings_ms = report.timings_ms;
     timings_ms.insert("hash".into(), hash_ms);
@@ -383,7 +388,7 @@ fn publish_marker(
     out_dir: &Path,
     marker_path: &Path,
     report: ConvertReport,
-) -> Result<ConvertReport, String> {
+) -> Result<ConvertReport, ConvertError> {
     marker.outputs = report
         .outputs
         .iter()

@@ -8,7 +8,7 @@ use std::sync::Arc;
 use interleave::Board;
 
 use super::photos::find_depth;
-use super::{ConvertReport, Converter, FnConverter, OutLayout};
+use super::{ConvertError, ConvertReport, Converter, FnConverter, OutLayout};
 use crate::depth::holes::HolePolicy;
 use crate::depth::net::{DepthConfig, DepthEstimator, DepthNetError, DepthSource};
 use crate::pipeline::progress::Progress;
@@ -28,8 +28,8 @@ pub enum GalleryError {
     DepthNet(#[from] DepthNetError),
     #[error(transparent)]
     ReshadeNet(#[from] NetError),
-    #[error("{0}")]
-    Options(String),
+    #[error(transparent)]
+    Scale(#[from] crate::depth::ScaleError),
     #[error(transparent)]
     Output(#[from] crate::io::output::OutputError),
     #[error(transparent)]
@@ -80,10 +80,7 @@ pub fn pipeline_converter(args: &GalleryConfig) -> Result<impl Converter, Galler
         crate::pipeline::preflight::check_model_path("--model", &model)?;
     }
     let board = pipeline::load_board(&args.board, args.calibration.as_deref())?;
-    let estimator = args
-        .depth
-        .estimator(DepthSource::Auto)
-        .map_err(GalleryError::Options)?;
+    let estimator = args.depth.estimator(DepthSource::Auto)?;
     // The depth network is loaded here, once, before any photo: first its memory.
     crate::pipeline::preflight::check_memory(
         "loading the depth network",
@@ -107,8 +104,8 @@ pub fn pipeline_converter(args: &GalleryConfig) -> Result<impl Converter, Galler
     let reshade_args = args.reshade.clone();
     let converter = FnConverter::new(
         fingerprint,
-        move |photo: &Path, out_dir: &Path| -> Result<ConvertReport, String> {
-            crate::io::output::check_output_dir(out_dir).map_err(|e| e.to_string())?;
+        move |photo: &Path, out_dir: &Path| -> Result<ConvertReport, ConvertError> {
+            crate::io::output::check_output_dir(out_dir)?;
             let sidecar = find_depth(photo);
             if let Some(size) = crate::io::photo::header_size(photo) {
                 let need = crate::pipeline::preflight::render_size(
@@ -127,8 +124,7 @@ pub fn pipeline_converter(args: &GalleryConfig) -> Result<impl Converter, Galler
                     ),
                     &crate::pipeline::preflight::estimate(&need),
                     crate::pipeline::preflight::RENDER_HINT,
-                )
-                .map_err(|e| e.to_string())?;
+                )?;
             }
             let depth = match sidecar {
                 Some((path, kind)) => SceneDepth::File { path, kind, holes },
@@ -149,8 +145,7 @@ pub fn pipeline_converter(args: &GalleryConfig) -> Result<impl Converter, Galler
                 out_dir: out_dir.into(),
                 progress: Progress::hidden(),
             };
-            let record =
-                pipeline::render(&opts, &*reshader, &*relocator).map_err(|e| e.to_string())?;
+            let record = pipeline::render(&opts, &*reshader, &*relocator)?;
             Ok(ConvertReport {
                 outputs: record.outputs.iter().map(|o| out_dir.join(o)).collect(),
                 timings_ms: record

@@ -9,17 +9,17 @@ use super::*;
 fn fake_converter(calls: &Cell<usize>) -> impl Converter + '_ {
     FnConverter::new("fake v1", move |photo: &Path, out: &Path| {
         calls.set(calls.get() + 1);
-        let bytes = std::fs::read(photo).map_err(|e| e.to_string())?;
+        let bytes = std::fs::read(photo)?;
         if bytes.starts_with(b"bad") {
-            return Err(format!("{}: not a photo", photo.display()));
+            return Err(format!("{}: not a photo", photo.display()).into());
         }
         if bytes.starts_with(b"panic") {
             panic!("decoder bug");
         }
-        std::fs::create_dir_all(out).map_err(|e| e.to_string())?;
+        std::fs::create_dir_all(out)?;
         let panel = out.join("panel.png");
-        std::fs::write(&panel, &bytes).map_err(|e| e.to_string())?;
-        Ok::<_, String>(ConvertReport {
+        std::fs::write(&panel, &bytes)?;
+        Ok::<_, ConvertError>(ConvertReport {
             outputs: vec![panel],
             timings_ms: BTreeMap::from([("render".into(), 1.0)]),
         })

@@ -180,10 +180,7 @@ fn live_depth(args: &LiveConfig) -> Result<Option<LiveDepth>, LiveError> {
             args.fov
         )));
     }
-    let estimator = args
-        .depth_net
-        .estimator(DepthSource::Network)
-        .map_err(LiveError::Options)?;
+    let estimator = args.depth_net.estimator(DepthSource::Network)?;
     let reshader = live_reshader(&args.reshade)?;
     Ok(Some(LiveDepth {
         reshader,

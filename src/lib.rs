@@ -31,3 +31,40 @@ pub use interleave;
 pub mod pipeline;
 pub mod device;
 pub mod eval;
+
+/// What a program that renders photos for a panel needs, in one import:
+///
+/// ```no_run
+/// use reshader::prelude::*;
+///
+/// let board = load_board("looking-glass-portrait", None)?;
+/// let opts = RenderOptions {
+///     photo: "photo.jpg".into(),
+///     depth: SceneDepth::Estimate(DepthConfig::default().estimator(DepthSource::Auto)?.into()),
+///     fov: None,
+///     board,
+///     board_file: None,
+///     calibration: None,
+///     focus: None,
+///     depthiness: None,
+///     shading_depthiness: None,
+///     only: vec![Product::Panel],
+///     sbs_pair: None,
+///     out_dir: "out".into(),
+///     progress: Progress::hidden(),
+/// };
+/// let reshader = ReshadeConfig::default().build()?;
+/// let record = render(&opts, &*reshader, &*RelocateConfig::default().build())?;
+/// println!("wrote {} files", record.outputs.len());
+/// # Ok::<(), Box<dyn std::error::Error>>(())
+/// ```
+pub mod prelude {
+    pub use crate::depth::net::{DepthConfig, DepthSource};
+    pub use crate::depth::{DepthKind, DepthMap};
+    pub use crate::interleave::Board;
+    pub use crate::pipeline::progress::Progress;
+    pub use crate::pipeline::{load_board, render, Product, RenderOptions, Scene, SceneDepth};
+    pub use crate::relocate::{RelocateConfig, Relocator};
+    pub use crate::reshade::net::choice::ReshadeConfig;
+    pub use crate::reshade::Reshader;
+}

@@ -33,17 +33,26 @@ pub(super) fn write_products(
         })?;
         t.time("write", || staging.write(&name, &bytes))?;
     }
+    if opts.wants(Product::Views) {
+        let names: Vec<String> = (0..views.len())
+            .map(|i| format!("views/{}", output::view_file_name(i)))
+            .collect();
+        let jobs: Vec<_> = names
+            .iter()
+            .zip(views)
+            .map(|(name, view)| (staging.final_path(name), view))
+            .collect();
+        let encoded = t.time("encode", || output::encode_pngs(&jobs))?;
+        for (name, bytes) in names.iter().zip(&encoded) {
+            t.time("write", || staging.write(name, bytes))?;
+        }
+    }
     let mut stage_png = |rel: &str, image: &RgbImage, t: &mut Timings| {
         let bytes = t.time("encode", || {
             output::encode_png(&staging.final_path(rel), image)
         })?;
         t.time("write", || staging.write(rel, &bytes))
     };
-    if opts.wants(Product::Views) {
-        for (i, view) in views.iter().enumerate() {
-            stage_png(&format!("views/{}", output::view_file_name(i)), view, t)?;
-        }
-    }
     if opts.wants(Product::Panel) {
         let panel = weave(board, views, t)?;
         stage_png("panel.png", &panel, t)?;

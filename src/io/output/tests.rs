@@ -147,3 +147,25 @@ fn view_names_parse() {
     assert_eq!(view_index("view_01.png.bak"), None);
     assert_eq!(view_index("view_01.txt"), None);
 }
+
+#[test]
+fn pngs_encoded_in_parallel_decode_to_their_images_in_order() {
+    let images: Vec<RgbImage> = (0..5u8)
+        .map(|i| {
+            RgbImage::from_fn(7, 3, |x, y| {
+                image::Rgb([i * 40, x as u8 * 30, y as u8 * 80])
+            })
+        })
+        .collect();
+    let jobs: Vec<(PathBuf, &RgbImage)> = images
+        .iter()
+        .enumerate()
+        .map(|(i, image)| (PathBuf::from(format!("view_{i:02}.png")), image))
+        .collect();
+    let encoded = encode_pngs(&jobs).unwrap();
+    assert_eq!(encoded.len(), images.len());
+    for (bytes, image) in encoded.iter().zip(&images) {
+        let decoded = image::load_from_memory(bytes).unwrap().to_rgb8();
+        assert_eq!(&decoded, image);
+    }
+}

@@ -96,8 +96,9 @@ pub struct RelocateArgs {
     /// Relocation method: the layered depth image, or the first mesh warp (for comparison).
     #[arg(long = "relocate", value_enum, default_value_t = RelocateKind::Ldi)]
     pub kind: RelocateKind,
-    /// Beyond the photo's borders (LDI): stretch the border pixels outwards, or magnify
-    /// every view slightly so the border never shows.
+    /// Beyond the photo's borders (LDI): stretch the border pixels outwards, magnify
+    /// every view slightly so the border never shows, or fill what a view sees beyond
+    /// the border by patch synthesis from the view.
     #[arg(long, value_enum, default_value_t = BorderArg::Extend)]
     pub border: BorderArg,
 }
@@ -115,6 +116,7 @@ impl Default for RelocateArgs {
 pub enum BorderArg {
     Extend,
     Crop,
+    Inpaint,
 }
 
 impl From<BorderArg> for Border {
@@ -122,6 +124,7 @@ impl From<BorderArg> for Border {
         match b {
             BorderArg::Extend => Border::Extend,
             BorderArg::Crop => Border::Crop,
+            BorderArg::Inpaint => Border::Inpaint,
         }
     }
 }

@@ -162,6 +162,34 @@ fn the_band_is_inpainted_from_the_wall_texture() {
 }
 
 #[test]
+fn the_band_continues_the_wall_stripes_instead_of_repeating_one_pixel_per_row() {
+    let scene = Scene::wall(4.0).rect(20..40, 10..38, RED, 1.0);
+    let ldi = scene.build(&LdiConfig::default(), 0.2);
+    let view = render(&ldi, &scene, 0.2, 4.0);
+    // The wall's stripes are 3 px wide, so a row of 6 or more band pixels that continues
+    // them shows both stripe colours; a row copied from one pixel shows one.
+    let (mut rows, mut striped) = (0, 0);
+    for y in 0..H {
+        let greens: Vec<f32> = (0..W)
+            .filter(|&x| view.front_fraction[y * W + x] == 0.0)
+            .map(|x| view.image.get(x as u32, y as u32)[1])
+            .collect();
+        if greens.len() >= 6 {
+            rows += 1;
+            let (lo, hi) = greens.iter().fold((f32::INFINITY, 0.0f32), |(lo, hi), &g| {
+                (lo.min(g), hi.max(g))
+            });
+            striped += usize::from(hi - lo > 0.2);
+        }
+    }
+    assert!(rows >= 20, "the view must uncover a wide band: {rows} rows");
+    assert!(
+        striped * 10 >= rows * 8,
+        "{striped} of {rows} band rows striped"
+    );
+}
+
+#[test]
 fn each_view_takes_the_front_colours_from_its_own_image() {
     let scene = Scene::wall(4.0).rect(20..40, 10..38, RED, 1.0);
     let ldi = scene.build(&LdiConfig::default(), 0.2);

@@ -259,8 +259,9 @@ pub struct RelocateArgs {
     /// Relocation method: the layered depth image, or the first mesh warp (for comparison).
     #[arg(long = "relocate", value_parser = keyword::<RelocateKind>(), default_value = "ldi")]
     pub kind: RelocateKind,
-    /// Beyond the photo's borders (LDI): stretch the border pixels outwards, or magnify
-    /// every view slightly so the border never shows.
+    /// Beyond the photo's borders (LDI): stretch the border pixels outwards, magnify
+    /// every view slightly so the border never shows, or fill what a view sees beyond
+    /// the border by patch synthesis from the view.
     #[arg(long, value_parser = keyword::<Border>(), default_value = "extend")]
     pub border: Border,
 }

@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use anyhow::Result;
 use clap::Args;
 
-use reshader::eval::relocation::{run, EvalConfig};
+use reshader::eval::relocation::{run, EvalConfig, EvalDepth};
 use reshader::relocate::ldi::Border;
 
 use crate::args::{keyword, ReshadeArgs};
@@ -13,14 +13,17 @@ use crate::args::{keyword, ReshadeArgs};
 pub const EVAL_ABOUT: &str = "\
 Score the relocation methods against ground-truth novel views rendered by the dataset
 renderer (models/train: one folder per example with input.exr, reshaded.exr, novel.exr,
-depth.exr, mask.png, meta.json), using the ground-truth depth: the input unmoved, the
-first mesh warp and the layered depth image, each with the input's colours and with the
-rendered reshaded colours. Prints mean PSNR / SSIM over valid pixels, pixels visible in
-the input and the disoccluded band (the paper's Table 1 for our relocators), and the
-LDI's build and per-view render times.
+depth.exr, mask.png, meta.json), with the ground-truth depth or the depth network's: the
+input unmoved, the first mesh warp and the layered depth image, each with the input's
+colours and with the rendered reshaded colours. Prints mean PSNR / SSIM over valid
+pixels, pixels visible in the input and the disoccluded band (the paper's Table 1 for
+our relocators); PSNR in a band around the true depth edges, in the region the input
+does not see and beyond the frame's border (where halos, streaks and stretched columns
+show); and the LDI's build and per-view render times.
 
-Example:
-  reshader eval-relocation data/reshade/val --sheets sheets/ --json eval.json";
+Examples:
+  reshader eval-relocation data/reshade/val --sheets sheets/ --json eval.json
+  reshader eval-relocation data/reshade/val --depth-source network --border inpaint";
 
 /// `reshader eval-relocation`'s arguments.
 #[derive(Clone, Debug, Args)]
@@ -37,6 +40,11 @@ pub struct EvalArgs {
     /// What the LDI shows beyond the photo's borders (as `render --border`).
     #[arg(long, value_parser = keyword::<Border>(), default_value = "extend")]
     pub border: Border,
+    /// Depth the methods relocate with: the renderer's (`truth`), or the shipped depth
+    /// network's (`network`: fp32, refined as `render` does) scale-aligned to the
+    /// renderer's in disparity, as a real photo's depth would be.
+    #[arg(long, value_parser = keyword::<EvalDepth>(), default_value = "truth")]
+    pub depth_source: EvalDepth,
     /// Also write the per-example numbers as JSON here.
     #[arg(long)]
     pub json: Option<PathBuf>,
@@ -60,6 +68,7 @@ pub fn eval_relocation(args: &EvalArgs) -> Result<()> {
         exposure: args.exposure,
         gamma: args.gamma,
         border: args.border,
+        depth_source: args.depth_source,
         json: args.json.clone(),
         sheets: args.sheets.clone(),
         reshade: args.reshade.config(),

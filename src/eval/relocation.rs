@@ -20,13 +20,22 @@
 //! ([`BandColours::Inpainted`]) instead of taking them from the view's reshaded image. PSNR and SSIM are computed against `novel.exr`
 //! over valid pixels (mask.png), split into pixels the input sees (the LDI renders them
 //! entirely from original pixels) and the disoccluded band (entirely from inpainted
-//! background or hole filling). HDR images are tone-mapped with a fixed exposure and
+//! background or hole filling); PSNR also in the [`regions`] the true geometry gives (the
+//! band around depth edges, what occluders uncover, what lies beyond the frame).
+//! `--depth-source network` gives the methods the depth network's depth, aligned to the
+//! true depth ([`network_depth`]), instead of the true depth. HDR images are tone-mapped with a fixed exposure and
 //! gamma (×5.5, 1/2.2, clipped: the training evaluation's), depth +inf (sky) becomes
 //! [`SKY_DEPTH`].
+
+mod network_depth;
+pub mod regions;
+
+pub use network_depth::EvalDepth;
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
+use crate::depth::net::{DepthNet, DepthNetError};
 use crate::depth::{read_raw, DepthMap};
 use crate::io::photo::SrgbImage;
 use crate::relocate::ldi::{view_reach, BandColours, Border, Ldi, LdiConfig};
@@ -46,6 +55,10 @@ pub const SKY_DEPTH: f32 = 1000.0;
 pub enum EvalError {
     #[error("reshading model: {0}")]
     Model(#[from] NetError),
+    #[error("depth network: {0}")]
+    DepthModel(#[from] DepthNetError),
+    #[error("{id}: depth network: {source}")]
+    Depth { id: String, source: DepthNetError },
     #[error("{id}: {source}")]
     Reshade { id: String, source: ReshadeError },
     #[error("cannot read {path}: {source}")]
@@ -61,7 +74,7 @@ pub enum EvalError {
     #[error("{path}: {detail}")]
     Meta { path: PathBuf, detail: String },
     #[error("{path}: {source}")]
-    Depth {
+    DepthFile {
         path: PathBuf,
         source: crate::depth::DepthError,
     },
@@ -83,6 +96,9 @@ pub struct EvalConfig {
     pub gamma: f32,
     /// What the LDI shows beyond the photo's borders.
     pub border: Border,
+    /// Depth the methods relocate with: the renderer's, or the shipped depth network's
+    /// scale-aligned to it in disparity.
+    pub depth_source: EvalDepth,
     /// Where the per-example numbers go as JSON.
     pub json: Option<PathBuf>,
     /// Where the contact sheets go, one PNG per example.
@@ -128,6 +144,12 @@ pub struct MethodScore {
     pub all: Score,
     pub visible: Score,
     pub disoccluded: Score,
+    /// Within [`regions::EDGE_BAND_PX`] of a true depth step.
+    pub edge: Score,
+    /// Hidden by an occluder in the input (true geometry).
+    pub uncovered: Score,
+    /// Beyond the input's frame (true geometry).
+    pub border: Score,
 }
 
 #[derive(Clone, Debug, serde::Serialize)]
@@ -146,7 +168,10 @@ struct Example {
     input: SrgbImage,
     reshaded: SrgbImage,
     novel: SrgbImage,
+    /// The depth the methods relocate with.
     depth: DepthMap,
+    /// The renderer's depth, which defines the regions.
+    true_depth: DepthMap,
     valid: Vec<bool>,
     source: Intrinsics,
     offset: [f64; 3],
@@ -157,9 +182,16 @@ struct Example {
 pub fn run(args: &EvalConfig) -> Result<(Vec<ExampleReport>, String), EvalError> {
     let dirs = example_dirs(&args.data, args.limit)?;
     let reshader = args.reshade.build()?;
+    let depth_net = match args.depth_source {
+        EvalDepth::Truth => None,
+        EvalDepth::Network => Some(network_depth::load()?),
+    };
     let mut reports = Vec::new();
     for dir in &dirs {
-        let example = load_example(dir, args.exposure, args.gamma)?;
+        let mut example = load_example(dir, args.exposure, args.gamma)?;
+        if let Some(net) = &depth_net {
+            example.depth = estimated_depth(net, &example)?;
+        }
         let (report, sheet) = evaluate(&example, args.border, reshader.as_ref())?;
         log::info!(
             "{}: {}",
@@ -236,7 +268,7 @@ fn load_example(dir: &Path, exposure: f32, gamma: f32) -> Result<Example, EvalEr
         height: h,
     };
     let depth_path = dir.join("depth.exr");
-    let raw = read_raw(&depth_path).map_err(|source| EvalError::Depth {
+    let raw = read_raw(&depth_path).map_err(|source| EvalError::DepthFile {
         path: depth_path.clone(),
         source,
     })?;
@@ -246,7 +278,7 @@ fn load_example(dir: &Path, exposure: f32, gamma: f32) -> Result<Example, EvalEr
             detail: format!("{}x{} but input.exr is {w}x{h}", raw.width, raw.height),
         });
     }
-    let depth = raw
+    let depth: Vec<f32> = raw
         .values
         .iter()
         .map(|&z| {
@@ -257,6 +289,7 @@ fn load_example(dir: &Path, exposure: f32, gamma: f32) -> Result<Example, EvalEr
             }
         })
         .collect();
+    let depth_copy = depth.clone();
     let mask_path = dir.join("mask.png");
     let mask = image::open(&mask_path)
         .map_err(|source| EvalError::Decode {
@@ -272,10 +305,39 @@ fn load_example(dir: &Path, exposure: f32, gamma: f32) -> Result<Example, EvalEr
         novel: load_hdr(&dir.join("novel.exr"), exposure, gamma)?,
         input,
         depth: DepthMap::new(w as usize, h as usize, depth),
+        true_depth: DepthMap::new(w as usize, h as usize, depth_copy),
         valid: mask.as_raw().iter().map(|&m| m > 127).collect(),
         source,
         offset,
     })
+}
+
+fn estimated_depth(net: &DepthNet, ex: &Example) -> Result<DepthMap, EvalError> {
+    network_depth::estimate(net, &ex.input, &ex.true_depth, &ex.valid).map_err(|source| {
+        EvalError::Depth {
+            id: ex.id.clone(),
+            source,
+        }
+    })
+}
+
+/// The regions of [`regions::Regions`] for one example, from a render of the LDI of its
+/// true depth with the border not extended.
+fn true_regions(ex: &Example, view: &ViewCamera) -> Result<regions::Regions, RelocateError> {
+    let config = LdiConfig {
+        border: Border::Inpaint,
+        ..LdiConfig::default()
+    };
+    let reach = view_reach(ex.offset, &ex.source);
+    let truth = Ldi::build(&ex.input, &ex.true_depth, &ex.source, &config, reach)?
+        .render_detailed(&ex.input, view)?;
+    Ok(regions::Regions::of_truth(
+        &ex.true_depth,
+        &ex.source,
+        ex.offset,
+        &truth.front_fraction,
+        &truth.hole_fraction,
+    ))
 }
 
 /// Reads a linear HDR image and tone-maps it: clamp((x · exposure)^(1/gamma), 0, 1).
@@ -373,6 +435,15 @@ fn evaluate(
     )
     .and_then(|l| l.render(&ex.reshaded, &view))
     .map_err(fail)?;
+    let truth = true_regions(ex, &view).map_err(fail)?;
+    let valid = |mask: &[bool]| -> Vec<bool> {
+        mask.iter().zip(&ex.valid).map(|(&m, &v)| m && v).collect()
+    };
+    let (edge, uncovered, border_px) = (
+        valid(&truth.edge),
+        valid(&truth.uncovered),
+        valid(&truth.border),
+    );
     let predictions: [(&'static str, Colours, &SrgbImage); 8] = [
         ("input", Colours::Input, &ex.input),
         ("input", Colours::Truth, &ex.reshaded),
@@ -398,6 +469,9 @@ fn evaluate(
                 all: score(&ex.valid),
                 visible: score(&visible),
                 disoccluded: score(&disoccluded),
+                edge: score(&edge),
+                uncovered: score(&uncovered),
+                border: score(&border_px),
             }
         })
         .collect();
@@ -564,14 +638,15 @@ fn write_sheet(dir: &Path, id: &str, images: &[SrgbImage]) -> Result<(), EvalErr
 /// the reshading model adds to the LDI's novel views.
 pub fn table(reports: &[ExampleReport], args: &EvalConfig, model: &str) -> String {
     let mut out = format!(
-        "{} examples, tone mapping x{} gamma {}, LDI border {}, reshading model {model}; PSNR dB / SSIM against the ground-truth novel view\n\n",
+        "{} examples, {:?} depth, tone mapping x{} gamma {}, LDI border {}, reshading model {model}; PSNR dB / SSIM against the ground-truth novel view; PSNR dB in the true geometry's regions\n\n",
         reports.len(),
+        args.depth_source,
         args.exposure,
         args.gamma,
         args.border
     );
     out.push_str(
-        "| method | colours | all | visible in input | disoccluded |\n|---|---|---|---|---|\n",
+        "| method | colours | all | visible in input | disoccluded | edge band | uncovered | border |\n|---|---|---|---|---|---|---|---|\n",
     );
     let Some(first) = reports.first() else {
         return out;
@@ -585,16 +660,29 @@ pub fn table(reports: &[ExampleReport], args: &EvalConfig, model: &str) -> Strin
             };
             match (avg(|s| s.psnr), avg(|s| s.ssim)) {
                 (Some(p), Some(q)) => format!("{p:.2} / {q:.4}"),
+                (Some(p), None) => format!("{p:.2}"),
                 _ => "–".into(),
             }
         };
         out.push_str(&format!(
-            "| {} | {} | {} | {} | {} |\n",
+            "| {} | {} | {} | {} | {} | {} | {} | {} |\n",
             s.method,
             s.colours.label(),
             mean(|m| m.all),
             mean(|m| m.visible),
-            mean(|m| m.disoccluded)
+            mean(|m| m.disoccluded),
+            mean(|m| Score {
+                ssim: None,
+                ..m.edge
+            }),
+            mean(|m| Score {
+                ssim: None,
+                ..m.uncovered
+            }),
+            mean(|m| Score {
+                ssim: None,
+                ..m.border
+            }),
         ));
     }
     let n = reports.len() as f64;

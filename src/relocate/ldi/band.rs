@@ -198,10 +198,13 @@ fn best_source(band: &Band, input: &BandInput, r: usize, d: f32, reach: usize) -
         let (mx, my) = ((m as i64) % w, (m as i64) / w);
         let (ox, oy) = (rx - mx, ry - my);
         match band.at[m] {
-            // Coherence: continue the neighbour's copy with the same offset.
+            // Coherence: continue the neighbour's copy with the same offset, or its
+            // mirror image: growing away from the background the same offset soon walks
+            // off the background's edge, and the mirror walks back into it instead.
             k if k != NONE => {
                 let s = band.source[k as usize] as i64;
                 consider(s % w + ox, s / w + oy);
+                consider(s % w - ox, s / w - oy);
             }
             // Background next to the hole: itself and its mirror image across r's edge.
             _ if input.colour_source(m, d) => {

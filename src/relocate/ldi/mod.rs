@@ -15,6 +15,7 @@
 
 mod band;
 mod edges;
+mod fill;
 mod mesh;
 mod render;
 
@@ -36,11 +37,17 @@ pub enum Border {
     /// Every view is magnified about its centre by the same factor, enough that the
     /// border never enters the frame; nothing is invented, the framing is slightly tighter.
     Crop,
+    /// The framing is the input's and what a view sees beyond the photo's edge is
+    /// filled like any other uncovered region, from the background beside it.
+    Inpaint,
 }
 
 impl crate::io::keyword::Keyword for Border {
-    const ALL: &'static [(Self, &'static str)] =
-        &[(Border::Extend, "extend"), (Border::Crop, "crop")];
+    const ALL: &'static [(Self, &'static str)] = &[
+        (Border::Extend, "extend"),
+        (Border::Crop, "crop"),
+        (Border::Inpaint, "inpaint"),
+    ];
 }
 
 /// The name `--border` takes.
@@ -292,12 +299,16 @@ impl Ldi {
         let intrinsics = supersampled(&self.framed(&view.intrinsics), k);
         let centre = view.centre.map(|c| c / self.scale);
         let frame = render::rasterise(&self.mesh, w * h, centre, &intrinsics, k);
-        Ok(self.resolve(&frame, colours))
+        let mut rendered = self.resolve(&frame, colours);
+        if self.border == Border::Inpaint {
+            synthesize_holes(&mut rendered, &frame);
+        }
+        Ok(rendered)
     }
 
     /// The view's intrinsics, magnified about the image centre in crop mode.
     fn framed(&self, k: &Intrinsics) -> Intrinsics {
-        if self.border == Border::Extend {
+        if self.border != Border::Crop {
             return *k;
         }
         let margin = self.stats.border_margin_px * k.fx / self.source.fx;
@@ -349,6 +360,34 @@ impl Ldi {
             front_fraction,
             hole_fraction,
         }
+    }
+}
+
+/// Replaces the colours of the pixels no sample covered (in part or whole) by patch
+/// synthesis from the rest of the view ([`fill`]).
+fn synthesize_holes(rendered: &mut Rendered, frame: &render::Frame) {
+    let k = frame.factor;
+    let (w, h) = (frame.width / k, frame.height / k);
+    let hole: Vec<bool> = rendered.hole_fraction.iter().map(|&f| f > 0.0).collect();
+    if !hole.contains(&true) {
+        return;
+    }
+    // The farthest subsample stands for the pixel: a hole opens onto the far side.
+    let inv_z: Vec<f32> = (0..w * h)
+        .map(|i| {
+            let (x, y) = (i % w, i / w);
+            (0..k * k)
+                .map(|s| frame.inv_z[(y * k + s / k) * frame.width + x * k + s % k])
+                .fold(f32::INFINITY, f32::min)
+        })
+        .collect();
+    let mut rgb = rendered.image.data().to_vec();
+    fill::synthesize(&mut rgb, &inv_z, &hole, w, h);
+    for (i, _) in hole.iter().enumerate().filter(|(_, &o)| o) {
+        let (x, y) = ((i % w) as u32, (i / w) as u32);
+        rendered
+            .image
+            .put(x, y, [rgb[3 * i], rgb[3 * i + 1], rgb[3 * i + 2]]);
     }
 }
 

@@ -22,6 +22,8 @@ pub(super) struct Frame {
     pub factor: usize,
     pub sample: Vec<u32>,
     pub origin: Vec<Origin>,
+    /// 1/z per subsample; filled subsamples have the surface they were filled from.
+    pub inv_z: Vec<f32>,
 }
 
 /// No sample: a subsample that nothing covered, not even after hole filling (a view
@@ -63,6 +65,7 @@ pub(super) fn rasterise(
         factor,
         sample,
         origin,
+        inv_z,
     }
 }
 

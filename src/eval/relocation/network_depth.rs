@@ -1,0 +1,102 @@
+//! Depth for the evaluation from the shipped depth network instead of the renderer, as
+//! `render` would estimate it (fp32 model, edge refinement on), then scale-aligned to
+//! the true depth: relative depth has an unknown scale and shift in disparity, and the
+//! evaluation measures edges and uncovered regions, not the scale.
+
+use crate::depth::net::{network_depth, DepthNet, DepthNetError, StageOptions};
+use crate::depth::DepthMap;
+use crate::engine::manifest::Precision;
+use crate::io::photo::SrgbImage;
+
+use super::SKY_DEPTH;
+
+/// Where the evaluated methods take their depth from.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum EvalDepth {
+    /// The renderer's depth.exr.
+    #[default]
+    Truth,
+    /// The shipped depth network on input.exr (tone-mapped), aligned to depth.exr.
+    Network,
+}
+
+impl crate::io::keyword::Keyword for EvalDepth {
+    const ALL: &'static [(Self, &'static str)] =
+        &[(Self::Truth, "truth"), (Self::Network, "network")];
+}
+
+/// The shipped fp32 network with `render`'s engine (tract, every core).
+pub fn load() -> Result<DepthNet, DepthNetError> {
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    DepthNet::shipped(Precision::Fp32, crate::engine::by_name("tract", cores)?)
+}
+
+/// The network's depth for `photo`, aligned to `truth` over the `valid` pixels.
+pub fn estimate(
+    net: &DepthNet,
+    photo: &SrgbImage,
+    truth: &DepthMap,
+    valid: &[bool],
+) -> Result<DepthMap, DepthNetError> {
+    let (estimated, _) = network_depth(net, &photo.to_rgb8(), &StageOptions::default())?;
+    Ok(aligned(&estimated, truth, valid))
+}
+
+/// `estimated` with its disparity mapped by the affine function that fits `truth`'s
+/// disparity best in least squares over `valid` pixels (all pixels when none is valid).
+pub fn aligned(estimated: &DepthMap, truth: &DepthMap, valid: &[bool]) -> DepthMap {
+    let any = valid.iter().any(|&v| v);
+    let pairs = || {
+        estimated
+            .data()
+            .iter()
+            .zip(truth.data())
+            .zip(valid)
+            .filter(move |(_, &v)| v || !any)
+            .map(|((&e, &t), _)| (1.0 / f64::from(e), 1.0 / f64::from(t)))
+    };
+    let n = pairs().count().max(1) as f64;
+    let (mx, my) = pairs().fold((0.0, 0.0), |(a, b), (x, y)| (a + x / n, b + y / n));
+    let (sxy, sxx) = pairs().fold((0.0, 0.0), |(a, b), (x, y)| {
+        (a + (x - mx) * (y - my), b + (x - mx) * (x - mx))
+    });
+    let scale = if sxx > 0.0 { sxy / sxx } else { 0.0 };
+    let shift = my - scale * mx;
+    let floor = 1.0 / f64::from(SKY_DEPTH);
+    let data = estimated
+        .data()
+        .iter()
+        .map(|&e| (1.0 / (scale / f64::from(e) + shift).max(floor)) as f32)
+        .collect();
+    DepthMap::new(estimated.width(), estimated.height(), data)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn an_affine_disparity_is_undone() {
+        let truth: Vec<f32> = [1.0f32, 2.0, 4.0, 8.0].to_vec();
+        // Disparity 3·d + 0.2 of the truth's.
+        let estimated: Vec<f32> = truth.iter().map(|&z| 1.0 / (3.0 / z + 0.2)).collect();
+        let out = aligned(
+            &DepthMap::new(4, 1, estimated),
+            &DepthMap::new(4, 1, truth.clone()),
+            &[true; 4],
+        );
+        for (a, b) in out.data().iter().zip(&truth) {
+            assert!((a - b).abs() < 1e-4 * b, "{a} vs {b}");
+        }
+    }
+
+    #[test]
+    fn invalid_pixels_do_not_pull_the_fit() {
+        let truth = DepthMap::new(3, 1, vec![1.0, 2.0, 1.0]);
+        let estimated = DepthMap::new(3, 1, vec![1.0, 2.0, 100.0]);
+        let out = aligned(&estimated, &truth, &[true, true, false]);
+        assert!((out.data()[0] - 1.0).abs() < 1e-5);
+        assert!((out.data()[1] - 2.0).abs() < 1e-5);
+    }
+}

@@ -897,6 +897,11 @@ def run(args: argparse.Namespace) -> int:
                 f"{args.checkpoint}: the lobes-flow head is for training experiments; the "
                 "runtime evaluates the lobes head only, so it has no export"
             )
+        if net.cfg.domain != "display":
+            raise ValueError(
+                f"{args.checkpoint}: its lobes add in the {net.cfg.domain} domain; the runtime "
+                "adds them in the display encoding only, so it has no export"
+            )
         size = args.size_name or size_name(net.cfg)
         base_validation = _load_metrics(args.metrics)
         nets = networks_for(args, net, ckpt)

@@ -38,6 +38,13 @@ HEAD_CHANNELS = {"residual": 3, "camera-linear": 9, "flow": 15, "lobes": 7, "lob
 LOBE_HEADS = ("lobes", "lobes-flow")
 LOBE_FLOW_CHANNELS = 4
 HEADS = tuple(HEAD_CHANNELS)
+LOBE_DOMAINS = ("display", "linear")
+# The inverse tone curve of the "linear" domain: the training data's display encoding is a
+# gamma between 2.2 and 5 (the paper's augmentation); 2.2 is its most common value and a
+# photo's sRGB curve's nearest power.
+LINEAR_GAMMA = 2.2
+# Below this linear value the curve's slope is cut: (x)^(1/g) has an infinite one at zero.
+LINEAR_FLOOR = 1e-4
 # Shifts are at most this many pixels per unit of (offset / CAMERA_SCALE).
 FLOW_MAX_PX = 4.0
 # Offsets are divided by this before the contraction (the middle of the paper's 0.1-0.3
@@ -57,6 +64,8 @@ class NetConfig:
     deadzone: float = 0.0
     # Spherical-Gaussian lobes per pixel of the "lobes" head.
     lobes: int = 2
+    # Where the lobe heads add their change: see LOBE_DOMAINS.
+    domain: str = "display"
 
     def __post_init__(self) -> None:
         if len(self.widths) != LEVELS or len(self.convs) != LEVELS:
@@ -69,6 +78,8 @@ class NetConfig:
             raise ValueError(f"dead zone {self.deadzone} must be in [0, 0.5)")
         if not 1 <= self.lobes <= 8:
             raise ValueError(f"lobes {self.lobes} must be in 1..8")
+        if self.domain not in LOBE_DOMAINS:
+            raise ValueError(f"unknown lobe domain {self.domain!r}: expected one of {LOBE_DOMAINS}")
 
     @property
     def out_channels(self) -> int:
@@ -95,6 +106,7 @@ class NetConfig:
             head=data.get("head", "residual"),
             deadzone=float(data.get("deadzone", 0.0)),
             lobes=int(data.get("lobes", 2)),
+            domain=data.get("domain", "display"),
         )
 
 
@@ -316,7 +328,10 @@ class Decoder(nn.Module):
 # the unit direction from the pixel's 3-D point to c, and the reshaded image is
 #   R = I + shrink(sum_j a_j [G_j(w_c) - G_j(w_0)], deadzone),
 # so R = I exactly at the input camera and any camera is defined. The sum is taken in the
-# display encoding, as the residual head's is.
+# display encoding, as the residual head's is, or (domain "linear") in linear radiance:
+# R = (I^g + shrink(sum ...))^(1/g). Light adds in linear radiance, so there one specular
+# amplitude serves a whole surface whatever its diffuse colour beneath, which the display
+# encoding's compression would have the network vary pixel by pixel.
 LOBE_LAYOUT = ("mu_x", "mu_y", "mu_z", "sharpness", "amp_r", "amp_g", "amp_b")
 # Sharpness spans one (a hemisphere-wide lobe) to a mirror's: a camera offset of 0.1-0.3 at
 # depth 1-5 turns w by 0.02-0.3 rad, and exp(-lambda theta^2 / 2) must resolve that.
@@ -410,6 +425,7 @@ def shade_lobes(
     rays: torch.Tensor,
     camera: torch.Tensor,
     deadzone: float = 0.0,
+    domain: str = "display",
 ) -> torch.Tensor:
     """The reshaded image for camera centres `camera` (B,3): what the runtime evaluates."""
     w = view_directions(disparity, rays, camera)
@@ -418,7 +434,12 @@ def shade_lobes(
     change = lobe_change(lobes[:, :lobe_channels], w, w0)
     if lobe_channels < lobes.shape[1]:
         change = change + flow_change(image, lobes[:, lobe_channels:], w, w0)
-    return image + shrink(change, deadzone)
+    if domain == "display":
+        return image + shrink(change, deadzone)
+    # Where nothing changes the photo is returned as it is, not through the curve and back.
+    change = shrink(change, deadzone)
+    linear = image.clamp(min=0.0) ** LINEAR_GAMMA + change
+    return torch.where(change == 0, image, linear.clamp(min=LINEAR_FLOOR) ** (1.0 / LINEAR_GAMMA))
 
 
 class ReshadeNet(nn.Module):
@@ -461,7 +482,8 @@ class ReshadeNet(nn.Module):
                 raise ValueError("the lobe head needs each pixel's ray (rays)")
             lobes = self.lobes(image, disparity, rays)
             out = [
-                shade_lobes(image, lobes, disparity, rays, c, self.cfg.deadzone) for c in cameras
+                shade_lobes(image, lobes, disparity, rays, c, self.cfg.deadzone, self.cfg.domain)
+                for c in cameras
             ]
         return torch.stack(out, 1) if many else out[0]
 

@@ -30,7 +30,7 @@ from .data import Augment, DatasetError, ReshadeDataset, list_examples
 from .evaluate import masked_psnr, reshade
 from .features import CHOICES, FeatureNetError
 from .losses import LossWeights, ReshadeLoss, make_loss, multi_target_loss, pixel_loss
-from .model import HEADS, NetConfig, ReshadeNet, count_parameters, net_config
+from .model import HEADS, LOBE_DOMAINS, NetConfig, ReshadeNet, count_parameters, net_config
 from .onnx_weights import load_onnx_weights
 
 CHECKPOINT = "checkpoint.pt"
@@ -72,6 +72,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "direction change; training experiments only, not exported)",
     )
     p.add_argument("--lobes", type=int, default=2, help="lobes per pixel of the lobes head")
+    p.add_argument(
+        "--lobe-domain",
+        choices=LOBE_DOMAINS,
+        default="display",
+        help="where the lobe heads add their change to the photo: the display encoding "
+        "(exported) or linear radiance, the photo decoded with gamma 2.2 and encoded again "
+        "(training experiments only, not exported)",
+    )
     p.add_argument(
         "--deadzone",
         type=float,
@@ -476,7 +484,13 @@ def train(args: argparse.Namespace) -> ReshadeNet:
     dataset, sampler, loader = make_loader(args, d, shared_example_list(args, d))
     val = ReshadeDataset(args.val_data) if args.val_data and d.main else None
 
-    cfg = replace(net_config(args.size), head=args.head, deadzone=args.deadzone, lobes=args.lobes)
+    cfg = replace(
+        net_config(args.size),
+        head=args.head,
+        deadzone=args.deadzone,
+        lobes=args.lobes,
+        domain=args.lobe_domain,
+    )
     net = ReshadeNet(cfg).to(d.device)
     opt = torch.optim.Adam(net.parameters(), lr=args.lr)
     step = restore(args.run_dir, net, opt, criterion.ident, d)

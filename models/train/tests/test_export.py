@@ -590,6 +590,19 @@ def lobe_checkpoint(tmp_path, data):
     return path
 
 
+def test_a_linear_domain_lobe_checkpoint_is_refused_with_the_reason(data, tmp_path, capsys):
+    net = ReshadeNet(replace(lobe_net().cfg, domain="linear"))
+    ckpt = tmp_path / "linear.pt"
+    torch.save({"model": net.state_dict(), "net_config": net.cfg.to_json(), "step": 4,
+                "args": {"data": str(data)}}, ckpt)  # fmt: skip
+    out = tmp_path / "out"
+    argv = ["export", str(ckpt), "--out", str(out), "--precision", "fp32",
+            "--height", "32", "--width", "64"]  # fmt: skip
+    assert cli.main(argv) != 0
+    assert "linear domain" in capsys.readouterr().err
+    assert not out.exists() or not list(out.iterdir())
+
+
 def test_cli_exports_a_lobe_checkpoint_and_quantize_fine_tunes_it(data, tmp_path, capsys):
     ckpt = lobe_checkpoint(tmp_path, data)
     out = tmp_path / "out"

@@ -6,6 +6,7 @@ import torch
 
 from reshader_train.model import (
     AMPLITUDE_MAX,
+    LINEAR_GAMMA,
     LOBE_FLOW_MAX,
     SHARPNESS_RANGE,
     SIZES,
@@ -275,6 +276,45 @@ def test_shade_lobes_is_the_closed_form():
         atol=1e-6,
     )
     assert torch.equal(shade_lobes(image, lobes, disp, rays, cam, deadzone=1.0), image)
+
+
+def test_linear_domain_adds_the_change_to_the_decoded_photo():
+    image = torch.tensor([0.2, 0.5, 0.9]).reshape(1, 3, 1, 1)
+    rays = torch.tensor([0.0, 0.0, 1.0]).reshape(1, 3, 1, 1)
+    disp = torch.full((1, 1, 1, 1), 0.25)
+    lobes = torch.tensor([0.0, 0.0, -1.0, 50.0, -0.3, -0.3, -0.3]).reshape(1, 7, 1, 1)
+    cam = torch.tensor([[0.3, 0.0, 0.0]])
+    display = shade_lobes(image, lobes, disp, rays, cam)
+    linear = shade_lobes(image, lobes, disp, rays, cam, domain="linear")
+    change = display - image
+    want = (image**LINEAR_GAMMA + change).clamp(min=1e-4) ** (1 / LINEAR_GAMMA)
+    assert torch.allclose(linear, want, atol=1e-6)
+    # The same linear brightening moves a dark pixel more than a bright one in display units.
+    moved = (linear - image).abs()[0, :, 0, 0]
+    assert moved[0] > moved[1] > moved[2] > 0
+    # Nothing changes at the input camera, and a change inside the dead zone is nothing.
+    assert torch.equal(
+        shade_lobes(image, lobes, disp, rays, torch.zeros(1, 3), domain="linear"), image
+    )
+    assert torch.equal(shade_lobes(image, lobes, disp, rays, cam, 1.0, "linear"), image)
+
+
+def test_linear_domain_network_is_the_photo_at_the_input_camera_and_round_trips():
+    cfg = replace(TINY, head="lobes", domain="linear")
+    assert NetConfig.from_json(cfg.to_json()).domain == "linear"
+    assert (
+        NetConfig.from_json({k: v for k, v in TINY.to_json().items() if k != "domain"}).domain
+        == "display"
+    )
+    torch.manual_seed(0)
+    net = ReshadeNet(cfg).eval()
+    torch.nn.init.normal_(net.decoder.out.weight, std=0.3)
+    image, disp = inputs()
+    rays = centred_rays()
+    assert torch.equal(net(image, disp, torch.zeros(1, 3), rays), image)
+    assert (net(image, disp, torch.tensor([[0.2, 0.0, 0.0]]), rays) - image).abs().max() > 1e-3
+    with pytest.raises(ValueError, match="lobe domain"):
+        replace(TINY, domain="log")
 
 
 def test_lobe_graph_is_the_networks_lobes():

@@ -659,11 +659,13 @@ def test_committed_lobe_fixture_is_consistent():
             view = shade_lobes(base["image"], torch.from_numpy(got), base["disparity"],
                                base["rays"], c, parity["deadzone"]).clamp(0, 1).numpy()  # fmt: skip
             assert np.abs(view - decode(case[p["reference"]], h, w)).max() <= p["tolerance"]
-    for case in parity["cases"]:  # the stored lobes shade to the stored fp32 views
+    # The stored lobes shade to the stored fp32 views. Not bit for bit: torch releases
+    # round exp and the normalisations differently (up to 3e-6 seen), a thousandth of a level.
+    for case in parity["cases"]:
         c = torch.tensor([case["camera"]])
         view = shade_lobes(base["image"], lobes, base["disparity"], base["rays"], c,
                            parity["deadzone"]).clamp(0, 1).numpy()  # fmt: skip
-        assert np.array_equal(view, decode(case["reshaded"], h, w))
+        assert np.abs(view - decode(case["reshaded"], h, w)).max() <= 1e-5
     dep = parity["camera_dependence"]
     assert dep["[0.0, 0.0, 0.0]"]["max_abs_change"] == 0.0
     assert dep["[0.5, 0.0, 0.0]"]["max_abs_change"] > 0.1

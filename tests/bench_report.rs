@@ -337,3 +337,42 @@ fn reshader_bench_times_the_lobe_head_in_the_reshading_rows() {
         );
     }
 }
+
+#[test]
+fn targets_sit_beside_the_figures_that_measure_them() {
+    use reshader::eval::bench::targets::{markdown, targets};
+    let mut big = case("looking-glass-portrait", 15.0, true);
+    big.photo = "synthetic 4000x3000".into();
+    big.photo_size = [4000, 3000];
+    let mut go = case("looking-glass-go", 30.0, true);
+    go.photo = big.photo.clone();
+    go.photo_size = big.photo_size;
+    let small = case("looking-glass-portrait", 1.0, true);
+    let r = report(vec![small, big, go]);
+    let t = targets(&r);
+    let find = |what: &str| t.iter().find(|t| t.what.starts_with(what)).unwrap();
+    // 12 MP → Portrait: total 1500 ms against 2000; → Go: 3000 against 2500.
+    assert_eq!(find("12 MP photo → Portrait").figure, Some(1500.0));
+    assert_eq!(find("12 MP photo → Portrait").met(), Some(true));
+    assert_eq!(find("12 MP photo → Go").met(), Some(false));
+    // No case of the example photo: not measured rather than met.
+    assert_eq!(find("the example photo").figure, None);
+    assert_eq!(find("the example photo").met(), None);
+    // Memory of the 12 MP cases only, in MB: 123 MiB.
+    let mem = find("peak resident memory").figure.unwrap();
+    assert!((mem - 123.0 * 1.048_576).abs() < 1e-9, "{mem}");
+    // The peer's worst ratio, 3×.
+    assert_eq!(find("tract / onnxruntime").met(), Some(false));
+    // Per view: (decoder 150 + LDI render 150) / 48 views on the worst Portrait case.
+    let per_view = find("reshading + relocation").figure.unwrap();
+    assert!((per_view - 300.0 / 48.0).abs() < 1e-9, "{per_view}");
+    assert_eq!(find("weave").figure, Some(150.0));
+    assert_eq!(find("weave").met(), Some(false));
+    let md = markdown(&r);
+    assert!(
+        md.contains("| weave, one 1536×2048 frame | ≤ 5.00 ms | 150 ms | **no** |"),
+        "{md}"
+    );
+    assert!(md.contains("| not measured | – |"), "{md}");
+    assert!(r.to_markdown().contains("## Targets"));
+}

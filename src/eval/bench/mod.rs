@@ -10,6 +10,7 @@ mod models;
 pub mod peer;
 pub mod report;
 mod stages;
+pub mod targets;
 
 pub use models::choose_model;
 

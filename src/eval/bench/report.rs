@@ -238,6 +238,7 @@ impl Report {
     pub fn to_markdown(&self) -> String {
         let mut out = String::new();
         self.header(&mut out);
+        out.push_str(&super::targets::markdown(self));
         for case in &self.cases {
             case_table(case, &mut out);
         }

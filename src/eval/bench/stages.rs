@@ -134,10 +134,10 @@ fn run_once(ctx: &Context, photo: &Path, board: &Board) -> Result<Run, BenchErro
     let weaver = timed(&mut t, "weave table", || {
         Weaver::new(board, vw, vh).with_threads(ctx.threads)
     });
-    let panel = timed(&mut t, "weave", || {
-        let rgb8: Vec<RgbImage> = views.iter().map(SrgbImage::to_rgb8).collect();
-        weaver.weave(&rgb8)
-    })?;
+    let rgb8: Vec<RgbImage> = timed(&mut t, "views to 8-bit", || {
+        views.iter().map(SrgbImage::to_rgb8).collect()
+    });
+    let panel = timed(&mut t, "weave", || weaver.weave(&rgb8))?;
     let out = ctx.work_dir.0.join("panel.png");
     timed(&mut t, "encode/write", || -> Result<(), BenchError> {
         let bytes = crate::io::output::encode_png(&out, &panel)?;
@@ -306,7 +306,8 @@ fn detail(ctx: &Context, stage: &str, board: &Board, run: &Run) -> String {
         "weave table" => {
             "Weaver::new: subpixel→view table for the board (once per board and view size)".into()
         }
-        "weave" => format!("views to 8-bit + subpixel weave, {} threads", ctx.threads),
+        "views to 8-bit" => "every view rounded to 8-bit sRGB (render writes these)".into(),
+        "weave" => format!("subpixel weave of the 8-bit views, {} threads", ctx.threads),
         "encode/write" => "panel PNG encode + atomic write".into(),
         _ => String::new(),
     }

@@ -22,9 +22,9 @@
 //! entirely from original pixels) and the disoccluded band (entirely from inpainted
 //! background or hole filling); PSNR also in the [`regions`] the true geometry gives (the
 //! band around depth edges, what occluders uncover, what lies beyond the frame).
-//! `--depth-source network` gives the methods the depth network's depth, aligned to the
-//! true depth ([`network_depth`]), instead of the true depth. HDR images are tone-mapped with a fixed exposure and
-//! gamma (×5.5, 1/2.2, clipped: the training evaluation's), depth +inf (sky) becomes
+//! `--depth-source network` ([`EvalDepth`]) gives the methods the depth network's depth,
+//! aligned to the true depth by least squares in disparity, instead of the true depth.
+//! HDR images are tone-mapped with a fixed exposure and gamma (×5.5, 1/2.2, clipped: the training evaluation's), depth +inf (sky) becomes
 //! [`SKY_DEPTH`].
 
 mod example;

@@ -17,6 +17,7 @@
 use std::collections::VecDeque;
 
 use super::edges::Cuts;
+use super::SplitMix;
 
 /// How many edge thresholds nearer than a band sample a pixel may be and still give
 /// it colour. Cuts are steps of at least one threshold between neighbours, while sources
@@ -276,17 +277,4 @@ fn patch_distance(
     let s = (sy * w + sx) as usize;
     let depth_penalty = ((input.disparity[s] - d) / d.max(1e-6)).powi(2);
     sum / target.len().max(1) as f32 + depth_penalty
-}
-
-/// A small deterministic generator: the band is the same on every run.
-struct SplitMix(u64);
-
-impl SplitMix {
-    fn next(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-        z ^ (z >> 31)
-    }
 }

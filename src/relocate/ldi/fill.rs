@@ -12,6 +12,8 @@
 
 use std::collections::VecDeque;
 
+use super::SplitMix;
+
 /// Patch half-size.
 const PATCH: i64 = 2;
 /// Random candidates per pixel besides the coherent and mirrored ones.
@@ -162,19 +164,6 @@ fn patch_cost(
         }
     }
     sum / count.max(1) as f32
-}
-
-/// A small deterministic generator: a view is filled the same way on every run.
-struct SplitMix(u64);
-
-impl SplitMix {
-    fn next(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-        z ^ (z >> 31)
-    }
 }
 
 #[cfg(test)]

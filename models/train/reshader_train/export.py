@@ -892,9 +892,9 @@ def run(args: argparse.Namespace) -> int:
 
     try:
         net, ckpt = load_any_checkpoint(args.checkpoint)
-        if net.cfg.head == "lobes-flow":
+        if net.cfg.head in ("lobes-flow", "lobes-slide"):
             raise ValueError(
-                f"{args.checkpoint}: the lobes-flow head is for training experiments; the "
+                f"{args.checkpoint}: the {net.cfg.head} head is for training experiments; the "
                 "runtime evaluates the lobes head only, so it has no export"
             )
         if net.cfg.domain != "display":

@@ -33,10 +33,17 @@ NEG_SLOPE = 0.1
 # (how far, which way) rather than their product with the image's edges.
 # Channels of the last conv per head: the residual, 3 x 3 Jacobian, and 6 shifts more.
 # "lobes" takes no camera: see LobeField. Its channels are per lobe, times NetConfig.lobes;
-# "lobes-flow" adds LOBE_FLOW_CHANNELS (see LobeField.flow).
-HEAD_CHANNELS = {"residual": 3, "camera-linear": 9, "flow": 15, "lobes": 7, "lobes-flow": 7}
-LOBE_HEADS = ("lobes", "lobes-flow")
-LOBE_FLOW_CHANNELS = 4
+# "lobes-flow" and "lobes-slide" add LOBE_EXTRA_CHANNELS (see LobeField).
+HEAD_CHANNELS = {
+    "residual": 3,
+    "camera-linear": 9,
+    "flow": 15,
+    "lobes": 7,
+    "lobes-flow": 7,
+    "lobes-slide": 7,
+}
+LOBE_HEADS = ("lobes", "lobes-flow", "lobes-slide")
+LOBE_EXTRA_CHANNELS = {"lobes": 0, "lobes-flow": 4, "lobes-slide": 4}
 HEADS = tuple(HEAD_CHANNELS)
 LOBE_DOMAINS = ("display", "linear")
 # The inverse tone curve of the "linear" domain: the training data's display encoding is a
@@ -84,9 +91,9 @@ class NetConfig:
     @property
     def out_channels(self) -> int:
         per = HEAD_CHANNELS[self.head]
-        if self.head == "lobes-flow":
-            return per * self.lobes + LOBE_FLOW_CHANNELS
-        return per * self.lobes if self.head == "lobes" else per
+        if self.head in LOBE_HEADS:
+            return per * self.lobes + LOBE_EXTRA_CHANNELS[self.head]
+        return per
 
     @property
     def takes_camera(self) -> bool:
@@ -357,10 +364,10 @@ def view_directions(disparity: torch.Tensor, rays: torch.Tensor, camera: torch.T
 class LobeField(nn.Module):
     """The decoder's raw channels -> lobes (B, 7K, H, W) in LOBE_LAYOUT order per lobe."""
 
-    def __init__(self, lobes: int, flow: bool = False) -> None:
+    def __init__(self, lobes: int, head: str = "lobes") -> None:
         super().__init__()
         self.lobes = lobes
-        self.flow = flow
+        self.head = head
         lo, hi = (torch.log(torch.tensor(v)) for v in SHARPNESS_RANGE)
         self.register_buffer("log_sharpness", torch.stack([lo, hi]), persistent=False)
         # sigmoid(b) places the sharpness at SHARPNESS_INIT when the raw channel is 0.
@@ -377,8 +384,11 @@ class LobeField(nn.Module):
             mu = mu / torch.sqrt((mu * mu).sum(1, keepdim=True) + 1e-12)
             sharp = torch.exp(lo + (hi - lo) * torch.sigmoid(p[:, 3:4] + self.sharpness_bias))
             parts += [mu, sharp, AMPLITUDE_MAX * torch.tanh(p[:, 4:7])]
-        if self.flow:
-            parts.append(LOBE_FLOW_MAX * torch.tanh(raw[:, 7 * self.lobes :]))
+        extra = raw[:, 7 * self.lobes :]
+        if self.head == "lobes-flow":
+            parts.append(LOBE_FLOW_MAX * torch.tanh(extra))
+        elif self.head == "lobes-slide":
+            parts += [torch.sigmoid(extra[:, 0:3]), SLIDE_DISPARITY_MAX * torch.tanh(extra[:, 3:4])]
         return torch.cat(parts, dim=1)
 
 
@@ -401,6 +411,59 @@ def flow_change(
     sx = flow[:, 0:1] * dx + flow[:, 1:2] * dy
     sy = flow[:, 2:3] * dx + flow[:, 3:4] * dy
     return -(gx * sx + gy * sy)
+
+
+# The "lobes-slide" head moves light the way a reflection moves: as a layer of its own. A
+# highlight or reflection is the image of a light or of another object in the surface, and
+# that image lies at its own depth (behind a flat surface at the mirrored distance; close
+# behind a convex one; at infinity for the sky in a flat floor), so when the camera moves it
+# slides across the surface with the parallax of that depth. Per pixel the network gives the
+# fraction of the photo that is such reflected light (S = I * fraction, per colour) and the
+# disparity offset of its image from the surface (delta); a view removes S and samples it
+# back from where the layer's parallax brings it. A lobe can only brighten a pixel by an
+# amplitude predicted for that pixel, while here the pixels a highlight slides onto take it
+# from the photo itself, and the network only predicts smooth per-surface fields. Zero at the
+# input camera, any camera defined, and a view costs one bilinear sample per pixel.
+# Disparity offsets are at most this (d = 0.25 / depth: a surface 2.5 units away is at 0.1).
+SLIDE_DISPARITY_MAX = 0.25
+# The layer's point must stay in front of a forward-moving camera: 1 - 4 d c_z is floored.
+SLIDE_MIN_DEPTH_RATIO = 0.05
+
+
+def project_from(disparity: torch.Tensor, rays: torch.Tensor, camera: torch.Tensor):
+    """Normalised image coordinates (x/z, y/z) of each pixel's point at `disparity` seen from
+    camera centre `camera` (B,3), in that camera's frame (no rotation, as the views')."""
+    q = rays - (disparity / DISPARITY_DEPTH) * camera[:, :, None, None]
+    return q[:, :2] / q[:, 2:3].clamp(min=SLIDE_MIN_DEPTH_RATIO)
+
+
+def slide_change(
+    image: torch.Tensor,
+    slide: torch.Tensor,
+    disparity: torch.Tensor,
+    rays: torch.Tensor,
+    camera: torch.Tensor,
+) -> torch.Tensor:
+    """S(x - s(x)) - S(x) for slide (B,4,H,W) = fraction (3), delta (1), S = image * fraction,
+    s the parallax of the layer at disparity + delta relative to the surface, in pixels."""
+    spec = image * slide[:, 0:3]
+    shift = project_from(disparity + slide[:, 3:4], rays, camera) - project_from(
+        disparity, rays, camera
+    )
+    _, _, h, w = image.shape
+    # Pixels per unit of normalised coordinate, from the rays (pixel centres one apart).
+    fx = 1.0 / (rays[:, 0, 0, 1] - rays[:, 0, 0, 0])
+    fy = 1.0 / (rays[:, 1, 1, 0] - rays[:, 1, 0, 0])
+    ys, xs = torch.meshgrid(
+        torch.arange(h, dtype=image.dtype, device=image.device),
+        torch.arange(w, dtype=image.dtype, device=image.device),
+        indexing="ij",
+    )
+    src_x = xs - shift[:, 0] * fx[:, None, None]
+    src_y = ys - shift[:, 1] * fy[:, None, None]
+    grid = torch.stack([2.0 * src_x / (w - 1) - 1.0, 2.0 * src_y / (h - 1) - 1.0], dim=-1)
+    moved = F.grid_sample(spec, grid, mode="bilinear", padding_mode="border", align_corners=True)
+    return moved - spec
 
 
 def lobe_change(lobes: torch.Tensor, w: torch.Tensor, w0: torch.Tensor) -> torch.Tensor:
@@ -426,14 +489,18 @@ def shade_lobes(
     camera: torch.Tensor,
     deadzone: float = 0.0,
     domain: str = "display",
+    head: str = "lobes",
 ) -> torch.Tensor:
     """The reshaded image for camera centres `camera` (B,3): what the runtime evaluates."""
     w = view_directions(disparity, rays, camera)
     w0 = view_directions(disparity, rays, torch.zeros_like(camera))
-    lobe_channels = lobes.shape[1] - lobes.shape[1] % 7
+    lobe_channels = lobes.shape[1] - LOBE_EXTRA_CHANNELS[head]
     change = lobe_change(lobes[:, :lobe_channels], w, w0)
-    if lobe_channels < lobes.shape[1]:
-        change = change + flow_change(image, lobes[:, lobe_channels:], w, w0)
+    extra = lobes[:, lobe_channels:]
+    if head == "lobes-flow":
+        change = change + flow_change(image, extra, w, w0)
+    elif head == "lobes-slide":
+        change = change + slide_change(image, extra, disparity, rays, camera)
     if domain == "display":
         return image + shrink(change, deadzone)
     # Where nothing changes the photo is returned as it is, not through the curve and back.
@@ -448,9 +515,7 @@ class ReshadeNet(nn.Module):
         self.cfg = cfg
         self.encoder = Encoder(cfg)
         self.decoder = Decoder(cfg)
-        self.lobe_field = (
-            LobeField(cfg.lobes, cfg.head == "lobes-flow") if cfg.head in LOBE_HEADS else None
-        )
+        self.lobe_field = LobeField(cfg.lobes, cfg.head) if cfg.head in LOBE_HEADS else None
         # He initialisation for LeakyReLU keeps activations from fading over the ~20 layers
         # between the camera features and the output (PyTorch's default init shrinks them,
         # and the camera's influence with them).
@@ -482,7 +547,16 @@ class ReshadeNet(nn.Module):
                 raise ValueError("the lobe head needs each pixel's ray (rays)")
             lobes = self.lobes(image, disparity, rays)
             out = [
-                shade_lobes(image, lobes, disparity, rays, c, self.cfg.deadzone, self.cfg.domain)
+                shade_lobes(
+                    image,
+                    lobes,
+                    disparity,
+                    rays,
+                    c,
+                    self.cfg.deadzone,
+                    self.cfg.domain,
+                    self.cfg.head,
+                )
                 for c in cameras
             ]
         return torch.stack(out, 1) if many else out[0]

@@ -590,16 +590,26 @@ def lobe_checkpoint(tmp_path, data):
     return path
 
 
-def test_a_linear_domain_lobe_checkpoint_is_refused_with_the_reason(data, tmp_path, capsys):
-    net = ReshadeNet(replace(lobe_net().cfg, domain="linear"))
-    ckpt = tmp_path / "linear.pt"
+@pytest.mark.parametrize(
+    "change, reason",
+    [
+        ({"domain": "linear"}, "linear domain"),
+        ({"head": "lobes-slide"}, "lobes-slide head is for training experiments"),
+        ({"head": "lobes-flow"}, "lobes-flow head is for training experiments"),
+    ],
+)
+def test_a_lobe_checkpoint_the_runtime_cannot_evaluate_is_refused_with_the_reason(
+    data, tmp_path, capsys, change, reason
+):
+    net = ReshadeNet(replace(lobe_net().cfg, **change))
+    ckpt = tmp_path / "experiment.pt"
     torch.save({"model": net.state_dict(), "net_config": net.cfg.to_json(), "step": 4,
                 "args": {"data": str(data)}}, ckpt)  # fmt: skip
     out = tmp_path / "out"
     argv = ["export", str(ckpt), "--out", str(out), "--precision", "fp32",
             "--height", "32", "--width", "64"]  # fmt: skip
     assert cli.main(argv) != 0
-    assert "linear domain" in capsys.readouterr().err
+    assert reason in capsys.readouterr().err
     assert not out.exists() or not list(out.iterdir())
 
 

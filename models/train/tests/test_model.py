@@ -10,6 +10,7 @@ from reshader_train.model import (
     LOBE_FLOW_MAX,
     SHARPNESS_RANGE,
     SIZES,
+    SLIDE_DISPARITY_MAX,
     DecoderGraph,
     EncoderGraph,
     LobeGraph,
@@ -339,15 +340,62 @@ def test_lobes_flow_slides_a_ramp_by_the_shift_and_is_the_photo_at_the_input_cam
     cam = torch.tensor([[0.2, 0.0, 0.0]])
     w = view_directions(disp, rays, cam)
     w0 = view_directions(disp, rays, torch.zeros(1, 3))
-    got = shade_lobes(image, lobes, disp, rays, cam)
+    got = shade_lobes(image, lobes, disp, rays, cam, head="lobes-flow")
     slope = 1.0 / 63  # per pixel
     expected = image - slope * 50.0 * (w - w0)[:, 0:1]
     inner = (slice(None), slice(None), slice(1, -1), slice(1, -1))
     assert torch.allclose(got[inner], expected[inner], atol=1e-5)
-    assert torch.equal(shade_lobes(image, lobes, disp, rays, torch.zeros(1, 3)), image)
+    still = shade_lobes(image, lobes, disp, rays, torch.zeros(1, 3), head="lobes-flow")
+    assert torch.equal(still, image)
     with torch.no_grad():
         out = net.lobes(*inputs(), rays)
     assert out.shape[1] == 11 and float(out[:, 7:].abs().max()) <= LOBE_FLOW_MAX
+
+
+def slide_scene(delta: float):
+    """A one-pixel-wide highlight column at x = 20 on a flat grey surface (disparity 0.125),
+    all of it reflected light, its image `delta` further in disparity; no lobe amplitude."""
+    image = torch.full((1, 3, 32, 64), 0.2)
+    image[..., 20] = 0.9
+    disp = torch.full((1, 1, 32, 64), 0.125)
+    lobes = torch.zeros(1, 11, 32, 64)
+    lobes[:, 2] = -1.0
+    lobes[:, 3] = 1.0
+    lobes[:, 7:10, :, 20] = 1.0 - 0.2 / 0.9  # only what lies above the surface's grey
+    lobes[:, 10] = delta
+    return image, disp, lobes
+
+
+def test_lobes_slide_moves_a_highlight_by_its_layers_parallax():
+    net = ReshadeNet(replace(TINY, head="lobes-slide", lobes=1))
+    assert net.decoder.out.out_channels == 7 + 4
+    rays = centred_rays()
+    fx = 1.0 / float(rays[0, 0, 0, 1] - rays[0, 0, 0, 0])
+    # A light mirrored at infinity (delta = -d) against the surface at depth 2: a camera 0.2
+    # to the right moves it by f * 0.2 / 2 pixels to the right relative to the surface.
+    image, disp, lobes = slide_scene(-0.125)
+    cam_x = 3.0 * 2.0 / fx  # the offset that moves it by exactly 3 pixels
+    got = shade_lobes(
+        image, lobes, disp, rays, torch.tensor([[cam_x, 0.0, 0.0]]), head="lobes-slide"
+    )
+    row = got[0, 0, 16]
+    assert torch.allclose(row[23], torch.tensor(0.9), atol=1e-4)
+    assert torch.allclose(row[20], torch.tensor(0.2), atol=1e-4)
+    assert torch.allclose(row[:19], torch.tensor(0.2)) and torch.allclose(
+        row[25:], torch.tensor(0.2)
+    )
+    still = shade_lobes(image, lobes, disp, rays, torch.zeros(1, 3), 0.004, head="lobes-slide")
+    assert torch.equal(still, image)
+    # No offset between the layer and the surface: it stays where it is for any camera.
+    image, disp, lobes = slide_scene(0.0)
+    fixed = shade_lobes(
+        image, lobes, disp, rays, torch.tensor([[0.3, 0.1, 0.2]]), 0.004, head="lobes-slide"
+    )
+    assert torch.equal(fixed, image)
+    with torch.no_grad():
+        out = net.lobes(*inputs(), rays)
+    assert out.shape[1] == 11 and float(out[:, 7:10].min()) >= 0 and float(out[:, 7:10].max()) <= 1
+    assert float(out[:, 10].abs().max()) <= SLIDE_DISPARITY_MAX
 
 
 def test_several_cameras_run_the_encoder_once_and_the_lobe_decoder_once():

@@ -2,6 +2,7 @@
 
 import json
 import math
+import os
 
 import numpy as np
 
@@ -189,3 +190,34 @@ def test_several_targets_need_the_analytic_family(capsys):
     assert "--targets applies to analytic scenes only" in capsys.readouterr().err
     assert main([*args, "--scenes", "analytic", "--targets", "0"]) == 2
     assert "--targets 0" in capsys.readouterr().err
+
+
+def test_an_unfinished_folder_is_cleared_only_when_its_render_is_gone(tmp_path):
+    from reshader_train.render.example import write_example
+
+    dead, live = (
+        tmp_path / ".tmp-00001-000000-999999999",
+        tmp_path / f".tmp-00001-000000-{os.getppid()}",
+    )
+    dead.mkdir()
+    live.mkdir()
+    (tmp_path / ".tmp-00001-000000").mkdir()  # the layout before the process id was added
+    image = np.zeros((2, 2, 3), np.float32)
+    views = {"input": image, "reshaded": image, "novel": image, "depth": np.ones((2, 2))}
+    views["invalid"] = np.zeros((2, 2))
+    written = write_example(
+        str(tmp_path),
+        views,
+        {"id": "00001-000000"},
+        lambda p, _x: open(p, "w").close(),
+        lambda p, _x: open(p, "w").close(),
+    )
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["00001-000000", live.name])
+    assert sorted(os.listdir(written)) == [
+        "depth.exr",
+        "input.exr",
+        "mask.png",
+        "meta.json",
+        "novel.exr",
+        "reshaded.exr",
+    ]

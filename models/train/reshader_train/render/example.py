@@ -320,13 +320,14 @@ def example_meta(views: dict, seed: int, index: int, settings: RenderSettings, *
 
 
 def write_example(out_dir: str, views: dict, meta: dict, write_exr, write_mask) -> str:
-    """Write into `<out>/.tmp-<id>` and rename: a folder named <id> is always complete.
+    """Write into `<out>/.tmp-<id>-<pid>` and rename: a folder named <id> is always complete,
+    even when two render commands given the same seed write into one folder at once.
     write_exr(path, (H, W, C) float image) and write_mask(path, (H, W) uint8) do the files
     (Mitsuba's writers, or numpy's where Mitsuba is not loaded)."""
     ex_id = meta["id"]
     final = os.path.join(out_dir, ex_id)
-    tmp = os.path.join(out_dir, f".tmp-{ex_id}")
-    shutil.rmtree(tmp, ignore_errors=True)
+    tmp = os.path.join(out_dir, f".tmp-{ex_id}-{os.getpid()}")
+    clear_stale_tmp(out_dir, ex_id)
     os.makedirs(tmp)
     for name in ("input", "reshaded", "novel"):
         write_exr(os.path.join(tmp, f"{name}.exr"), views[name])
@@ -341,6 +342,28 @@ def write_example(out_dir: str, views: dict, meta: dict, write_exr, write_mask) 
         shutil.rmtree(final)
     os.rename(tmp, final)
     return final
+
+
+def clear_stale_tmp(out_dir: str, ex_id: str) -> None:
+    """Remove the unfinished folders of `ex_id` left by render commands that are gone (and
+    this process's own); a live one's is its to finish."""
+    for name in os.listdir(out_dir):
+        if name != f".tmp-{ex_id}" and not name.startswith(f".tmp-{ex_id}-"):
+            continue
+        pid = name[len(f".tmp-{ex_id}-") :] if name != f".tmp-{ex_id}" else ""
+        if pid.isdigit() and int(pid) != os.getpid() and pid_alive(int(pid)):
+            continue
+        shutil.rmtree(os.path.join(out_dir, name), ignore_errors=True)
+
+
+def pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
 
 
 def is_complete(out_dir: str, ex_id: str) -> bool:

@@ -388,7 +388,8 @@ class LobeField(nn.Module):
         if self.head == "lobes-flow":
             parts.append(LOBE_FLOW_MAX * torch.tanh(extra))
         elif self.head == "lobes-slide":
-            parts += [torch.sigmoid(extra[:, 0:3]), SLIDE_DISPARITY_MAX * torch.tanh(extra[:, 3:4])]
+            fraction = torch.sigmoid(extra[:, 0:3] + SLIDE_FRACTION_BIAS)
+            parts += [fraction, SLIDE_DEPTH_INIT + torch.tanh(extra[:, 3:4])]
         return torch.cat(parts, dim=1)
 
 
@@ -418,14 +419,20 @@ def flow_change(
 # that image lies at its own depth (behind a flat surface at the mirrored distance; close
 # behind a convex one; at infinity for the sky in a flat floor), so when the camera moves it
 # slides across the surface with the parallax of that depth. Per pixel the network gives the
-# fraction of the photo that is such reflected light (S = I * fraction, per colour) and the
-# disparity offset of its image from the surface (delta); a view removes S and samples it
-# back from where the layer's parallax brings it. A lobe can only brighten a pixel by an
-# amplitude predicted for that pixel, while here the pixels a highlight slides onto take it
-# from the photo itself, and the network only predicts smooth per-surface fields. Zero at the
-# input camera, any camera defined, and a view costs one bilinear sample per pixel.
-# Disparity offsets are at most this (d = 0.25 / depth: a surface 2.5 units away is at 0.1).
-SLIDE_DISPARITY_MAX = 0.25
+# fraction of the photo that is such reflected light (S = I * fraction, per colour) and how
+# far behind the surface its image lies, as the share rho of the surface's disparity d that
+# the image lacks: the image is at disparity d (1 - rho), rho = 0 on the surface, 1 at
+# infinity (a distant light in a flat floor), negative in front (a concave mirror's real
+# image). A view removes S and samples it back from where the layer's parallax brings it.
+# A lobe can only brighten a pixel by an amplitude predicted for that pixel, while here the
+# pixels a highlight slides onto take it from the photo itself, and the network only
+# predicts smooth per-surface fields. Zero at the input camera, any camera defined, and a
+# view costs one bilinear sample per pixel.
+# An untrained network's layer is a twentieth of the photo lying at twice the surface's
+# depth: were it zero or on the surface, moving it would change nothing, and neither field
+# would have a gradient to learn from. rho spans SLIDE_DEPTH_INIT -+ 1.
+SLIDE_FRACTION_BIAS = -3.0
+SLIDE_DEPTH_INIT = 0.5
 # The layer's point must stay in front of a forward-moving camera: 1 - 4 d c_z is floored.
 SLIDE_MIN_DEPTH_RATIO = 0.05
 
@@ -444,12 +451,11 @@ def slide_change(
     rays: torch.Tensor,
     camera: torch.Tensor,
 ) -> torch.Tensor:
-    """S(x - s(x)) - S(x) for slide (B,4,H,W) = fraction (3), delta (1), S = image * fraction,
-    s the parallax of the layer at disparity + delta relative to the surface, in pixels."""
+    """S(x - s(x)) - S(x) for slide (B,4,H,W) = fraction (3), rho (1), S = image * fraction,
+    s the parallax of the layer at disparity d (1 - rho) relative to the surface, in pixels."""
     spec = image * slide[:, 0:3]
-    shift = project_from(disparity + slide[:, 3:4], rays, camera) - project_from(
-        disparity, rays, camera
-    )
+    layer = disparity * (1.0 - slide[:, 3:4])
+    shift = project_from(layer, rays, camera) - project_from(disparity, rays, camera)
     _, _, h, w = image.shape
     # Pixels per unit of normalised coordinate, from the rays (pixel centres one apart).
     fx = 1.0 / (rays[:, 0, 0, 1] - rays[:, 0, 0, 0])

@@ -10,7 +10,7 @@ from reshader_train.model import (
     LOBE_FLOW_MAX,
     SHARPNESS_RANGE,
     SIZES,
-    SLIDE_DISPARITY_MAX,
+    SLIDE_DEPTH_INIT,
     DecoderGraph,
     EncoderGraph,
     LobeGraph,
@@ -352,9 +352,9 @@ def test_lobes_flow_slides_a_ramp_by_the_shift_and_is_the_photo_at_the_input_cam
     assert out.shape[1] == 11 and float(out[:, 7:].abs().max()) <= LOBE_FLOW_MAX
 
 
-def slide_scene(delta: float):
+def slide_scene(rho: float):
     """A one-pixel-wide highlight column at x = 20 on a flat grey surface (disparity 0.125),
-    all of it reflected light, its image `delta` further in disparity; no lobe amplitude."""
+    all of it reflected light, its image at disparity 0.125 (1 - rho); no lobe amplitude."""
     image = torch.full((1, 3, 32, 64), 0.2)
     image[..., 20] = 0.9
     disp = torch.full((1, 1, 32, 64), 0.125)
@@ -362,7 +362,7 @@ def slide_scene(delta: float):
     lobes[:, 2] = -1.0
     lobes[:, 3] = 1.0
     lobes[:, 7:10, :, 20] = 1.0 - 0.2 / 0.9  # only what lies above the surface's grey
-    lobes[:, 10] = delta
+    lobes[:, 10] = rho
     return image, disp, lobes
 
 
@@ -371,9 +371,9 @@ def test_lobes_slide_moves_a_highlight_by_its_layers_parallax():
     assert net.decoder.out.out_channels == 7 + 4
     rays = centred_rays()
     fx = 1.0 / float(rays[0, 0, 0, 1] - rays[0, 0, 0, 0])
-    # A light mirrored at infinity (delta = -d) against the surface at depth 2: a camera 0.2
-    # to the right moves it by f * 0.2 / 2 pixels to the right relative to the surface.
-    image, disp, lobes = slide_scene(-0.125)
+    # A light mirrored at infinity (rho = 1) in the surface at depth 2: a camera c to the
+    # right moves it by f c / 2 pixels to the right relative to the surface.
+    image, disp, lobes = slide_scene(1.0)
     cam_x = 3.0 * 2.0 / fx  # the offset that moves it by exactly 3 pixels
     got = shade_lobes(
         image, lobes, disp, rays, torch.tensor([[cam_x, 0.0, 0.0]]), head="lobes-slide"
@@ -395,7 +395,7 @@ def test_lobes_slide_moves_a_highlight_by_its_layers_parallax():
     with torch.no_grad():
         out = net.lobes(*inputs(), rays)
     assert out.shape[1] == 11 and float(out[:, 7:10].min()) >= 0 and float(out[:, 7:10].max()) <= 1
-    assert float(out[:, 10].abs().max()) <= SLIDE_DISPARITY_MAX
+    assert SLIDE_DEPTH_INIT - 1 <= float(out[:, 10].min()) <= float(out[:, 10].max()) <= 1.5
 
 
 def test_several_cameras_run_the_encoder_once_and_the_lobe_decoder_once():

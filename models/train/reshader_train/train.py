@@ -112,6 +112,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--lr", type=float, default=1e-4)
     p.add_argument("--lr-final", type=float, default=1e-5)
     p.add_argument(
+        "--head-lr-scale",
+        type=float,
+        default=1.0,
+        help="the output conv learns at this multiple of the learning rate: the lobe heads' "
+        "fields (sharpness, axes, amplitudes) start at a fixed point and leave it slowly",
+    )
+    p.add_argument(
         "--lr-drop", type=float, default=0.6, help="fraction of --steps at --lr (paper: 300k/500k)"
     )
     p.add_argument("--seed", type=int, default=0)
@@ -445,9 +452,22 @@ def write_config(args: argparse.Namespace, d: Dist, net: ReshadeNet, meta: dict,
     atomic_write(path, lambda tmp: tmp.write_text(json.dumps(config, indent=2)))
 
 
+def param_groups(net: ReshadeNet, head_lr_scale: float) -> list[dict]:
+    """One group, or (with a head learning-rate scale) the output conv in a second group
+    that carries its scale; a checkpoint resumes with the grouping it was saved with."""
+    if head_lr_scale == 1.0:
+        return [{"params": list(net.parameters())}]
+    head = {id(p) for p in net.decoder.out.parameters()}
+    rest = [p for p in net.parameters() if id(p) not in head]
+    return [
+        {"params": rest},
+        {"params": list(net.decoder.out.parameters()), "lr_scale": head_lr_scale},
+    ]
+
+
 def train_step(model, criterion: ReshadeLoss, opt, batch: dict, lr: float, d: Dist, step: int):
     for group in opt.param_groups:
-        group["lr"] = lr
+        group["lr"] = lr * group.get("lr_scale", 1.0)
     b = {k: v.to(d.device, non_blocking=True) for k, v in batch.items()}
     if "targets" in b:  # (B, N, ...): N cameras per photo, one encoder pass
         pred = model(b["image"], b["disparity"], b["cameras"], b["rays"])
@@ -494,7 +514,7 @@ def train(args: argparse.Namespace) -> ReshadeNet:
         domain=args.lobe_domain,
     )
     net = ReshadeNet(cfg).to(d.device)
-    opt = torch.optim.Adam(net.parameters(), lr=args.lr)
+    opt = torch.optim.Adam(param_groups(net, args.head_lr_scale), lr=args.lr)
     step = restore(args.run_dir, net, opt, criterion.ident, d)
     if step == 0 and args.init_from:
         count = load_onnx_weights(net, args.init_from, partial=args.init_partial)

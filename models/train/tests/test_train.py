@@ -227,6 +227,27 @@ def test_lobe_head_trains_validates_and_reaches_the_checkpoint(data, tmp_path):
     assert float(row["psnr_ours"]) > 0
 
 
+def test_head_lr_scale_moves_the_output_conv_faster_and_resumes(data, tmp_path, monkeypatch):
+    from reshader_train import train as train_module
+
+    seen = []
+    step = train_module.train_step
+
+    def spy(model, criterion, opt, *rest):
+        seen.append([(len(g["params"]), g["lr"]) for g in opt.param_groups])
+        return step(model, criterion, opt, *rest)
+
+    monkeypatch.setattr(train_module, "train_step", spy)
+    run = tmp_path / "slide"
+    args = dict(head="lobes-slide", loss_weights="1,0,0", lr=1e-4, lr_drop=1, head_lr_scale=10)
+    train(train_args(data, run, 2, **args))
+    train(train_args(data, run, 3, **args))  # resumed with its two groups
+    assert len(seen) == 3
+    (rest, rest_lr), (head, head_lr) = seen[-1]
+    assert head == 2 and rest > 2 and rest_lr == pytest.approx(1e-4)
+    assert head_lr == pytest.approx(1e-3)
+
+
 @pytest.fixture(scope="module")
 def three_targets(tmp_path_factory):
     """Three analytic examples with three targets each (32x32)."""

@@ -151,11 +151,25 @@ def lpips_metric():
     return metric, None
 
 
-def evaluate_folder(net: ReshadeNet, root: Path, limit: int | None, lpips_fn=None) -> list[dict]:
+def target_sample(ex, target: int) -> dict:
+    """The evaluation sample of `ex` against its target number `target` (0: the first, as
+    every example has; -1: its last), with the single-target keys."""
+    if target == 0:
+        return make_sample(ex, crop=None, rng=None, aug=None)
+    k = target % ex.target_count
+    s = make_sample(ex, crop=None, rng=None, aug=None, targets=ex.target_count)
+    picked = {"target": s["targets"][k], "mask": s["masks"][k], "camera": s["cameras"][k]}
+    rest = {n: v for n, v in s.items() if n not in ("targets", "masks", "cameras", "weights")}
+    return {**rest, **picked}
+
+
+def evaluate_folder(
+    net: ReshadeNet, root: Path, limit: int | None, lpips_fn=None, target: int = 0
+) -> list[dict]:
     rows = []
     for folder in list_examples(root)[:limit]:
         ex = load_example(folder)
-        s = make_sample(ex, crop=None, rng=None, aug=None)
+        s = target_sample(ex, target)
         ours = reshade(net, s["image"], s["disparity"], s["camera"], s["rays"])
         row = {"split": root.name, "scene": ex.scene, "example": ex.name}
         row["valid_values"] = int((s["mask"].expand_as(ours) > 0.5).sum())
@@ -277,6 +291,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--sheet", type=Path, help="visual sheet PNG (input | ours | GT | error)")
     p.add_argument("--json", type=Path, help="write per-split metrics as JSON")
     p.add_argument("--threads", type=int, default=0, help="torch threads (0: torch default)")
+    p.add_argument(
+        "--target",
+        type=int,
+        default=0,
+        help="which reshaded target of examples rendered with several to score: 0 the first "
+        "(default; every example has it), -1 the last (the camera `field-fit` holds out)",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -290,7 +311,7 @@ def run(args: argparse.Namespace) -> int:
     lpips_fn, lpips_note = lpips_metric()
     rows = []
     for root in args.data:
-        rows += evaluate_folder(net, root, args.limit, lpips_fn)
+        rows += evaluate_folder(net, root, args.limit, lpips_fn, args.target)
     summary = summarise(rows)
     step, feats = ckpt.get("step"), ckpt.get("feature_net")
     print(f"checkpoint {args.checkpoint} (step {step}, feature net {feats})")

@@ -123,6 +123,25 @@ def test_evaluate_command(tmp_path, capsys):
         assert im.size == (4 * 40, 2 * 32)
 
 
+def test_evaluate_scores_the_target_asked_for(tmp_path):
+    data = tmp_path / "analytic"
+    argv = ["render", "--scenes", "analytic", "--out", str(data), "--count", "2", "--size",
+            "32x32", "--spp", "1", "--targets", "3", "--seed", "7"]  # fmt: skip
+    assert cli.main(argv) == 0
+    cfg = net_config("4,8,8,16,16,16")
+    ckpt = tmp_path / "ckpt.pt"
+    torch.save({"model": ReshadeNet(cfg).state_dict(), "net_config": cfg.to_json()}, ckpt)
+    cameras = {}
+    for target in (0, -1, 2):
+        out = tmp_path / f"t{target}.json"
+        argv = ["evaluate", "--checkpoint", str(ckpt), "--data", str(data), "--json", str(out),
+                "--threads", "1", "--target", str(target)]  # fmt: skip
+        assert cli.main(argv) == 0
+        cameras[target] = [e["psnr_input"] for e in json.loads(out.read_text())["examples"]]
+    # The last target is the third: another camera than the first, so other scores.
+    assert cameras[-1] == cameras[2] and cameras[-1] != cameras[0]
+
+
 def test_evaluate_rejects_missing_checkpoint(tmp_path, capsys):
     assert (
         cli.main(["evaluate", "--checkpoint", str(tmp_path / "x.pt"), "--data", str(tmp_path)]) == 2

@@ -156,6 +156,8 @@ def target_sample(ex, target: int) -> dict:
     every example has; -1: its last), with the single-target keys."""
     if target == 0:
         return make_sample(ex, crop=None, rng=None, aug=None)
+    if not -ex.target_count <= target < ex.target_count:
+        raise ValueError(f"{ex.name}: has {ex.target_count} target(s), no target {target}")
     k = target % ex.target_count
     s = make_sample(ex, crop=None, rng=None, aug=None, targets=ex.target_count)
     picked = {"target": s["targets"][k], "mask": s["masks"][k], "camera": s["cameras"][k]}
@@ -310,8 +312,12 @@ def run(args: argparse.Namespace) -> int:
         return 2
     lpips_fn, lpips_note = lpips_metric()
     rows = []
-    for root in args.data:
-        rows += evaluate_folder(net, root, args.limit, lpips_fn, args.target)
+    try:
+        for root in args.data:
+            rows += evaluate_folder(net, root, args.limit, lpips_fn, args.target)
+    except ValueError as err:
+        print(f"evaluate: {err}", file=sys.stderr)
+        return 2
     summary = summarise(rows)
     step, feats = ckpt.get("step"), ckpt.get("feature_net")
     print(f"checkpoint {args.checkpoint} (step {step}, feature net {feats})")

@@ -6,9 +6,9 @@ the head's per-pixel fields are fitted directly (no network) to all cameras but 
 and scored on the last, held out: the gain a network could reach whose fields were as good
 as a fit that saw N - 1 other cameras of the same scene. The fields are smooth, as a
 network's are: they are fitted at 1/`--smooth` of the resolution and upsampled bilinearly
-(at full resolution a fit has more unknowns per pixel than cameras and fits the held-out
-camera's noise no better than the input). Scores as `evaluate` gives them: fixed tone
-mapping, masked by validity, "changing" views those whose input is below 40 dB.
+(at full resolution a pixel has more unknowns than there are cameras to fit). Scores as
+`evaluate` gives them: fixed tone mapping, masked by validity, "changing" views those
+whose input is below 40 dB.
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ import torch.nn.functional as F
 
 from .data import DatasetError, list_examples, load_example, make_sample
 from .evaluate import CHANGING_BELOW_DB, masked_psnr
-from .model import LOBE_EXTRA_CHANNELS, LOBE_HEADS, LobeField, shade_lobes
+from .model import LOBE_HEADS, LobeField, lobe_head_channels, shade_lobes
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -52,8 +52,8 @@ def fit_fields(head: str, lobes: int, sample: dict, smooth: int, steps: int, lr:
     targets, masks, cameras = sample["targets"], sample["masks"], sample["cameras"]
     h, w = image.shape[2:]
     field = LobeField(lobes, head)
-    channels = 7 * lobes + LOBE_EXTRA_CHANNELS[head]
-    raw = torch.zeros(1, channels, max(1, h // smooth), max(1, w // smooth), requires_grad=True)
+    size = (max(1, h // smooth), max(1, w // smooth))
+    raw = torch.zeros(1, lobe_head_channels(head, lobes), *size, requires_grad=True)
     opt = torch.optim.Adam([raw], lr=lr)
 
     def fields() -> torch.Tensor:
@@ -146,7 +146,7 @@ def run(args: argparse.Namespace) -> int:
                     "psnr_fit": ours,
                     "gain_db": ours - inp,
                     "fitted_gain_db": fitted,
-                }  # fmt: skip
+                }
             )
         print(
             f"[{i + 1}/{len(examples)}] {ex.name} ({time.monotonic() - started:.0f} s)",

@@ -45,6 +45,13 @@ HEAD_CHANNELS = {
 LOBE_HEADS = ("lobes", "lobes-flow", "lobes-slide")
 LOBE_EXTRA_CHANNELS = {"lobes": 0, "lobes-flow": 4, "lobes-slide": 4}
 HEADS = tuple(HEAD_CHANNELS)
+
+
+def lobe_head_channels(head: str, lobes: int) -> int:
+    """Raw output channels of a lobe head with `lobes` lobes: 7 per lobe plus its extras."""
+    return HEAD_CHANNELS[head] * lobes + LOBE_EXTRA_CHANNELS[head]
+
+
 LOBE_DOMAINS = ("display", "linear")
 # The inverse tone curve of the "linear" domain: the training data's display encoding is a
 # gamma between 2.2 and 5 (the paper's augmentation); 2.2 is its most common value and a
@@ -90,10 +97,9 @@ class NetConfig:
 
     @property
     def out_channels(self) -> int:
-        per = HEAD_CHANNELS[self.head]
         if self.head in LOBE_HEADS:
-            return per * self.lobes + LOBE_EXTRA_CHANNELS[self.head]
-        return per
+            return lobe_head_channels(self.head, self.lobes)
+        return HEAD_CHANNELS[self.head]
 
     @property
     def takes_camera(self) -> bool:

@@ -71,7 +71,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "lobes-flow (lobes plus the photo's gradient times a predicted shift per radian of view "
         "direction change; training experiments only, not exported) or lobes-slide (lobes plus "
         "a layer of reflected light, a fraction of the photo per pixel, that slides with the "
-        "parallax of its own predicted disparity)",
+        "parallax of its own predicted disparity; not exported yet)",
     )
     p.add_argument("--lobes", type=int, default=2, help="lobes per pixel of the lobes head")
     p.add_argument(

@@ -123,7 +123,7 @@ def test_evaluate_command(tmp_path, capsys):
         assert im.size == (4 * 40, 2 * 32)
 
 
-def test_evaluate_scores_the_target_asked_for(tmp_path):
+def test_evaluate_scores_the_target_asked_for(tmp_path, capsys):
     data = tmp_path / "analytic"
     argv = ["render", "--scenes", "analytic", "--out", str(data), "--count", "2", "--size",
             "32x32", "--spp", "1", "--targets", "3", "--seed", "7"]  # fmt: skip
@@ -140,6 +140,9 @@ def test_evaluate_scores_the_target_asked_for(tmp_path):
         cameras[target] = [e["psnr_input"] for e in json.loads(out.read_text())["examples"]]
     # The last target is the third: another camera than the first, so other scores.
     assert cameras[-1] == cameras[2] and cameras[-1] != cameras[0]
+    argv = ["evaluate", "--checkpoint", str(ckpt), "--data", str(data), "--target", "3"]
+    assert cli.main(argv) == 2
+    assert "has 3 target(s), no target 3" in capsys.readouterr().err
 
 
 def test_evaluate_rejects_missing_checkpoint(tmp_path, capsys):

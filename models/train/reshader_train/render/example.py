@@ -347,11 +347,12 @@ def write_example(out_dir: str, views: dict, meta: dict, write_exr, write_mask) 
 def clear_stale_tmp(out_dir: str, ex_id: str) -> None:
     """Remove the unfinished folders of `ex_id` left by render commands that are gone (and
     this process's own); a live one's is its to finish."""
+    prefix = f".tmp-{ex_id}"
     for name in os.listdir(out_dir):
-        if name != f".tmp-{ex_id}" and not name.startswith(f".tmp-{ex_id}-"):
+        if name != prefix and not name.startswith(prefix + "-"):
             continue
-        pid = name[len(f".tmp-{ex_id}-") :] if name != f".tmp-{ex_id}" else ""
-        if pid.isdigit() and int(pid) != os.getpid() and pid_alive(int(pid)):
+        owner = name[len(prefix) + 1 :]  # "" for the layout without a process id
+        if owner.isdigit() and int(owner) != os.getpid() and pid_alive(int(owner)):
             continue
         shutil.rmtree(os.path.join(out_dir, name), ignore_errors=True)
 
@@ -362,7 +363,7 @@ def pid_alive(pid: int) -> bool:
     except ProcessLookupError:
         return False
     except PermissionError:
-        return True
+        pass  # it exists, owned by another user
     return True
 
 

@@ -280,6 +280,21 @@ mod lobes {
     }
 
     #[test]
+    fn a_lobes_slide_manifest_needs_its_layer_s_channels() {
+        // The 2-lobe graph's manifest claiming the sliding layer: its channel list lacks
+        // the layer, and without the list the output's 14 channels are not 7·2 + 4.
+        let msg = lobe_refusal(|m| m["head"] = json!("lobes-slide"));
+        assert_names(&msg, "channels");
+        assert!(msg.contains("fraction_r"), "{msg}");
+        let msg = lobe_refusal(|m| {
+            m["head"] = json!("lobes-slide");
+            m.as_object_mut().unwrap().remove("channels");
+        });
+        assert_names(&msg, "outputs[0].shape");
+        assert!(msg.contains("18") && msg.contains("lobes-slide"), "{msg}");
+    }
+
+    #[test]
     fn a_graph_with_other_channels_than_its_manifest_is_refused_at_run_time() {
         // A consistent manifest (K = 3, 21 channels) vouching for the 2-lobe graph.
         let dir = tempfile::tempdir().unwrap();

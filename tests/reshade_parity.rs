@@ -164,22 +164,38 @@ mod onnxruntime {
     }
 }
 
-// --- the lobe head (models/fixtures/parity-lobes.json) ----------------------------------------
+// --- the lobe heads (models/fixtures/parity-lobes.json, models/fixtures/slide/…) ----------
 
 mod lobes {
     use super::*;
+    use reshade_support::manifest_path_in;
     use reshader::engine::manifest::LobeSpec;
     use reshader::reshade::net::lobes::{pixel_rays, LobeField, LobeReshader};
     use reshader::views::Intrinsics;
+    use std::path::PathBuf;
 
     /// The brief's bound for the runtime against PyTorch: one 8-bit level per pixel.
     const ONE_LEVEL: f32 = 1.0 / 255.0;
 
-    fn parity() -> Value {
-        let text = std::fs::read_to_string(fixture_dir().join("parity-lobes.json")).unwrap();
+    /// The fixtures of the lobe heads: `lobes` beside the residual one, `lobes-slide` in
+    /// its own folder (one lobe-head manifest per precision and folder).
+    fn fixtures() -> [PathBuf; 2] {
+        [fixture_dir(), fixture_dir().join("slide")]
+    }
+
+    fn parity(dir: &std::path::Path) -> Value {
+        let text = std::fs::read_to_string(dir.join("parity-lobes.json")).unwrap();
         let p: Value = serde_json::from_str(&text).unwrap();
         assert_eq!(p["format"], "reshader-lobe-parity/1");
         p
+    }
+
+    fn spec(p: &Value) -> LobeSpec {
+        LobeSpec {
+            lobes: p["lobes"].as_u64().unwrap() as usize,
+            deadzone: p["deadzone"].as_f64().unwrap() as f32,
+            slide: p["head"].as_str().unwrap_or("lobes") == "lobes-slide",
+        }
     }
 
     /// The camera the fixture's rays were made with, as the pipeline describes a photo's:
@@ -215,19 +231,20 @@ mod lobes {
             .collect()
     }
 
-    fn check(precision: Precision, threads: usize) {
-        let p = parity();
+    fn check(dir: &std::path::Path, precision: Precision, threads: usize) {
+        let p = parity(dir);
         let spec = &p["precisions"][precision.to_string()];
         let key = spec["reference"].as_str().unwrap();
         let tolerance = (spec["tolerance"].as_f64().unwrap() as f32).max(ONE_LEVEL);
         let (image, depth) = inputs(&p);
-        let path = manifest_path(Task::ReshadeLobes, precision);
+        let path = manifest_path_in(dir, Task::ReshadeLobes, precision);
         assert_eq!(
             path.file_name().unwrap().to_str().unwrap(),
             spec["model"].as_str().unwrap()
         );
         let net =
             LobeReshader::load(&path, precision, tract(threads), NetOptions::default()).unwrap();
+        assert_eq!(net.spec(), self::spec(&p), "{}", path.display());
         let prepared = net.prepare_photo(&image, &depth, &camera(&p)).unwrap();
         let mut beyond = false;
         for (centre, case) in cases(&p) {
@@ -240,10 +257,14 @@ mod lobes {
                 continue;
             }
             let d = max_abs_diff(&out, &reference(&p, case, key));
-            eprintln!("lobes {precision} camera {centre:?}: max |runtime - PyTorch| {d:.2e}");
+            eprintln!(
+                "{} {precision} camera {centre:?}: max |runtime - PyTorch| {d:.2e}",
+                net.spec().head()
+            );
             assert!(
                 d <= tolerance,
-                "{precision} camera {centre:?}: {d} > {tolerance}"
+                "{} {precision} camera {centre:?}: {d} > {tolerance}",
+                dir.display()
             );
             // And the view really changes (the comparison is not between two photos).
             assert!(max_abs_diff(&out, &image) > 0.05, "{precision} {centre:?}");
@@ -254,43 +275,51 @@ mod lobes {
 
     #[test]
     fn fp32_lobes_match_pytorch_within_one_level_and_the_input_camera_is_the_photo() {
-        check(Precision::Fp32, 1);
-        check(Precision::Fp32, 2);
+        for dir in fixtures() {
+            check(&dir, Precision::Fp32, 1);
+            check(&dir, Precision::Fp32, 2);
+        }
     }
 
     #[test]
     fn fp16_and_int8_lobes_match_their_references() {
-        check(Precision::Fp16, 1);
-        check(Precision::Int8, 2);
+        for dir in fixtures() {
+            check(&dir, Precision::Fp16, 1);
+            check(&dir, Precision::Int8, 2);
+        }
     }
 
     #[test]
     fn the_closed_form_on_pytorch_s_lobes_is_pytorch_s_shading() {
         // No engine: the fixture's own lobes through the Rust closed form, so that any
         // difference is the formula's, not the network's.
-        let p = parity();
-        let (h, w) = (
-            p["height"].as_u64().unwrap() as usize,
-            p["width"].as_u64().unwrap() as usize,
-        );
-        let (image, depth) = inputs(&p);
-        let spec = LobeSpec {
-            lobes: p["lobes"].as_u64().unwrap() as usize,
-            deadzone: p["deadzone"].as_f64().unwrap() as f32,
-        };
-        let lobes = f32s(&base64(p["lobes_fp32"].as_str().unwrap()));
-        let disparity: Vec<f32> = depth
-            .data()
-            .iter()
-            .map(|&z| reshader::reshade::net::disparity(z))
-            .collect();
-        let rays = pixel_rays(&camera(&p), w, h);
-        let field = LobeField::new(spec, w, h, &lobes, &disparity, &rays).unwrap();
-        for (centre, case) in cases(&p) {
-            let out = field.reshade(&image, centre, 2).unwrap();
-            let d = max_abs_diff(&out, &reference(&p, case, "reshaded"));
-            eprintln!("closed form on PyTorch's lobes, camera {centre:?}: {d:.2e}");
-            assert!(d <= 1e-5, "camera {centre:?}: {d}");
+        for dir in fixtures() {
+            let p = parity(&dir);
+            let (h, w) = (
+                p["height"].as_u64().unwrap() as usize,
+                p["width"].as_u64().unwrap() as usize,
+            );
+            let (image, depth) = inputs(&p);
+            let lobes = f32s(&base64(p["lobes_fp32"].as_str().unwrap()));
+            let disparity: Vec<f32> = depth
+                .data()
+                .iter()
+                .map(|&z| reshader::reshade::net::disparity(z))
+                .collect();
+            let planar: Vec<f32> = (0..3)
+                .flat_map(|c| image.data().chunks_exact(3).map(move |px| px[c]))
+                .collect();
+            let rays = pixel_rays(&camera(&p), w, h);
+            let field = LobeField::new(spec(&p), w, h, &lobes, &planar, &disparity, &rays).unwrap();
+            for (centre, case) in cases(&p) {
+                let out = field.reshade(&image, centre, 2).unwrap();
+                let d = max_abs_diff(&out, &reference(&p, case, "reshaded"));
+                eprintln!(
+                    "{}: closed form on PyTorch's fields, camera {centre:?}: {d:.2e}",
+                    dir.display()
+                );
+                assert!(d <= 1e-5, "{} camera {centre:?}: {d}", dir.display());
+            }
         }
     }
 }

@@ -21,8 +21,12 @@ pub fn fixture_dir() -> PathBuf {
 
 /// The fixture manifest for `task` at `precision`.
 pub fn manifest_path(task: Task, precision: Precision) -> PathBuf {
-    let dir = fixture_dir();
-    let mut found: Vec<PathBuf> = std::fs::read_dir(&dir)
+    manifest_path_in(&fixture_dir(), task, precision)
+}
+
+/// The one manifest for `task` at `precision` in `dir`.
+pub fn manifest_path_in(dir: &Path, task: Task, precision: Precision) -> PathBuf {
+    let mut found: Vec<PathBuf> = std::fs::read_dir(dir)
         .unwrap_or_else(|e| panic!("fixture directory {}: {e}", dir.display()))
         .flatten()
         .map(|e| e.path())

@@ -44,6 +44,7 @@ from .model import (
     DISPARITY_FREQUENCIES,
     LOBE_LAYOUT,
     SIZES,
+    SLIDE_LAYOUT,
     CameraMLP,
     DecoderGraph,
     EncoderGraph,
@@ -143,11 +144,18 @@ def tensor_specs(cfg: NetConfig) -> dict[str, dict]:
         },
         "lobes": {
             "layout": "NCHW",
-            "shape": [1, len(LOBE_LAYOUT) * cfg.lobes, "H", "W"],
+            "shape": [1, cfg.out_channels, "H", "W"],
             "range": None,
             "description": f"{cfg.lobes} lobes per pixel, lobe j in channels 7j..7j+6 = "
             f"{', '.join(LOBE_LAYOUT)}: unit axis in the input camera frame, sharpness > 0, "
-            "signed RGB amplitude (display encoding); see the manifest's shading",
+            "signed RGB amplitude (display encoding)"
+            + (
+                f"; then {', '.join(SLIDE_LAYOUT)}: the share of the photo per colour that "
+                "slides as a reflection, and how far behind the surface its image lies"
+                if cfg.head == "lobes-slide"
+                else ""
+            )
+            + "; see the manifest's shading",
         },
     }
     last = len(cfg.widths) - 1
@@ -184,12 +192,14 @@ DECODER = GraphKind(
     "-decoder", "reshade-decoder", DecoderGraph.input_names, DecoderGraph.output_names
 )
 LOBES = GraphKind("-lobes", "reshade-lobes", LobeGraph.input_names, LobeGraph.output_names)
+# The lobe heads the runtime evaluates (src/reshade/net/lobes.rs); lobes-flow is not one.
+EXPORTED_LOBE_HEADS = ("lobes", "lobes-slide")
 
 
 def graph_kinds(cfg: NetConfig, split: bool) -> tuple[GraphKind, ...]:
     """The graphs one precision is written as: the lobe head has one, the others the single
     graph and, with `split`, the encoder/decoder pair."""
-    if cfg.head == "lobes":
+    if cfg.head in EXPORTED_LOBE_HEADS:
         return (LOBES,)
     return (SINGLE, ENCODER, DECODER) if split else (SINGLE,)
 
@@ -490,7 +500,7 @@ def to_onnx(module: nn.Module, cfg: NetConfig, kind: GraphKind, feed: dict):
         # The exporter leaves the concatenated channel axis symbolic; the manifest and the
         # runtime know it is 7K.
         (out,) = model.graph.output
-        out.type.tensor_type.shape.dim[1].dim_value = len(LOBE_LAYOUT) * cfg.lobes
+        out.type.tensor_type.shape.dim[1].dim_value = cfg.out_channels
     return model
 
 
@@ -519,7 +529,8 @@ def check_parity(
             )
         r = r.numpy()
         if kind is LOBES:
-            r, o = comparable_lobes(r), comparable_lobes(o)
+            lobes = reference.net.cfg.lobes
+            r, o = comparable_lobes(r, lobes), comparable_lobes(o, lobes)
         diff = np.abs(r - o)
         worst = max(worst, float(diff.max()))
         mean = max(mean, float(diff.mean()))
@@ -543,23 +554,33 @@ def check_parity(
 LOBE_PARITY_CAMERAS = ((0.12, -0.05, 0.2), (0.5, 0.0, 0.0))
 
 
-def comparable_lobes(lobes: np.ndarray) -> np.ndarray:
-    """Lobes with each sharpness replaced by its logarithm, so that one absolute tolerance
-    bounds the axes and amplitudes absolutely and the sharpness (1..2e4) relatively."""
-    out = np.array(lobes, dtype=np.float64, copy=True)
-    out[:, 3 :: len(LOBE_LAYOUT)] = np.log(np.maximum(out[:, 3 :: len(LOBE_LAYOUT)], 1e-30))
+def comparable_lobes(fields: np.ndarray, lobes: int) -> np.ndarray:
+    """The fields with each of the `lobes` sharpnesses replaced by its logarithm, so that
+    one absolute tolerance bounds the axes, amplitudes and the sliding layer's fraction and
+    depth absolutely and the sharpness (1..2e4) relatively."""
+    out = np.array(fields, dtype=np.float64, copy=True)
+    sharp = slice(3, len(LOBE_LAYOUT) * lobes, len(LOBE_LAYOUT))
+    out[:, sharp] = np.log(np.maximum(out[:, sharp], 1e-30))
     return out
 
 
 def shaded_parity(feed: dict, ref: torch.Tensor, got: torch.Tensor, reference: nn.Module) -> dict:
     """The largest difference (display units, clamped to [0,1]) between the closed form on
     PyTorch's lobes and on onnxruntime's, per camera of LOBE_PARITY_CAMERAS."""
-    deadzone = reference.net.cfg.deadzone
+    cfg = reference.net.cfg
     result = {}
     for cam in LOBE_PARITY_CAMERAS:
         c = torch.tensor([cam])
         a, b = (
-            shade_lobes(feed["image"], lobes, feed["disparity"], feed["rays"], c, deadzone)
+            shade_lobes(
+                feed["image"],
+                lobes,
+                feed["disparity"],
+                feed["rays"],
+                c,
+                cfg.deadzone,
+                head=cfg.head,
+            )
             .clamp(0.0, 1.0)
             .numpy()
             for lobes in (ref, got)
@@ -606,7 +627,7 @@ def architecture(cfg: NetConfig, size: str, kind: GraphKind) -> dict:
         "parameters": count_parameters(module),
         "gflops_at_384x640": round(gflops, 4),
     }
-    if cfg.head == "lobes":
+    if cfg.head in EXPORTED_LOBE_HEADS:
         arch["lobes"] = cfg.lobes
     return arch
 
@@ -619,19 +640,32 @@ LOBE_SHADING = (
     "by deadzone (0 where |change| <= deadzone, else change -+ deadzone, per channel); "
     "reshaded = clamp(image + change', 0, 1); c = 0 gives the image exactly"
 )
+# What lobes-slide adds to the change before the threshold (model.slide_change).
+SLIDE_SHADING = (
+    "lobes-slide adds to change, before the threshold: S = image * fraction (per colour), "
+    "q = d / disparity_depth; with p(z) = (r - z c)_xy / max((r - z c)_z, 0.05), the shift "
+    "s = p(q (1 - rho)) - p(q) in normalised coordinates, times (fx, fy) in pixels; "
+    "+ S sampled bilinearly at (x - s_x fx, y - s_y fy), coordinates clamped to the image "
+    "(pixel centres at integers), - S at the pixel"
+)
 
 
 def lobe_fields(cfg: NetConfig) -> dict:
     """The manifest fields of a lobe graph beyond the common ones (models/MANIFEST.md)."""
+    channels = [f"{name}{j}" for j in range(cfg.lobes) for name in LOBE_LAYOUT]
+    shading = LOBE_SHADING
+    if cfg.head == "lobes-slide":
+        channels += list(SLIDE_LAYOUT)
+        shading = f"{LOBE_SHADING}. {SLIDE_SHADING}"
     return {
-        "head": "lobes",
+        "head": cfg.head,
         "lobes": cfg.lobes,
         "lobe_layout": list(LOBE_LAYOUT),
-        "channels": [f"{name}{j}" for j in range(cfg.lobes) for name in LOBE_LAYOUT],
+        "channels": channels,
         "deadzone": cfg.deadzone,
         "domain": "display",
         "disparity_depth": DISPARITY_DEPTH,
-        "shading": LOBE_SHADING,
+        "shading": shading,
     }
 
 
@@ -892,10 +926,10 @@ def run(args: argparse.Namespace) -> int:
 
     try:
         net, ckpt = load_any_checkpoint(args.checkpoint)
-        if net.cfg.head in ("lobes-flow", "lobes-slide"):
+        if net.cfg.head == "lobes-flow":
             raise ValueError(
-                f"{args.checkpoint}: the {net.cfg.head} head is for training experiments; the "
-                "runtime evaluates the lobes head only, so it has no export"
+                f"{args.checkpoint}: the lobes-flow head is for training experiments; the "
+                f"runtime evaluates {' and '.join(EXPORTED_LOBE_HEADS)} only, so it has no export"
             )
         if net.cfg.domain != "display":
             raise ValueError(
@@ -905,7 +939,7 @@ def run(args: argparse.Namespace) -> int:
         size = args.size_name or size_name(net.cfg)
         base_validation = _load_metrics(args.metrics)
         nets = networks_for(args, net, ckpt)
-        if args.split and net.cfg.head == "lobes":
+        if args.split and net.cfg.head in EXPORTED_LOBE_HEADS:
             print(
                 "export: the lobe head is one graph per precision (-lobes); --split ignored",
                 file=sys.stderr,

@@ -19,6 +19,11 @@ with the last convolution frozen). Exported as one graph per precision
 `parity-lobes.json`: the closed-form input with its camera intrinsics, PyTorch's lobes and
 its reshaded images (model.shade_lobes, clamped) for three cameras, one of them beyond the
 trained offsets, so that the runtime can check its per-view closed form without Python.
+
+`--head lobes-slide` writes the same for the lobes-slide head (one lobe and the sliding
+layer, its fraction biased up so that a fifth of the photo slides), named
+`reshade-fixture-slide-<precision>-lobes`; give it a folder of its own (models/fixtures/slide),
+as the runtime finds one lobe-head manifest per precision in a folder.
 """
 
 from __future__ import annotations
@@ -77,6 +82,11 @@ LOBE_INIT_STD = 0.3  # last conv: visible lobes from the first step
 # initial 100, at which a 0.2 offset changes 35 % of the parity input's pixels; at -1, 79 %.
 LOBE_SHARPNESS_BIAS = -1.0
 LOBE_PARITY = "parity-lobes.json"
+# The lobes-slide fixture: lobes, name, and the raw fraction's bias (sigmoid(1.5 - 3): a
+# fifth of the photo slides, a visible layer).
+SLIDE_LOBES = 1
+SLIDE_STEM = "reshade-fixture-slide"
+SLIDE_FRACTION_RAW_BIAS = 1.5
 STEPS = 1000
 LOBE_STEPS = 0
 
@@ -85,10 +95,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", type=Path, required=True, help="folder (models/fixtures)")
     p.add_argument(
         "--head",
-        choices=("residual", "lobes"),
+        choices=("residual", "lobes", "lobes-slide"),
         default="residual",
-        help="residual: the encoder/decoder fixture and parity.json; lobes: the lobe head's "
-        "graphs (-lobes) and parity-lobes.json",
+        help="residual: the encoder/decoder fixture and parity.json; lobes or lobes-slide: that "
+        "lobe head's graphs (-lobes) and parity-lobes.json (lobes-slide into a folder of its own)",
     )
     p.add_argument(
         "--steps", type=int, help=f"training steps (default {STEPS} residual, {LOBE_STEPS} lobes)"
@@ -229,16 +239,22 @@ def make_fixture(out: Path, steps: int, seed: int, examples: int, height: int, w
 # --- the lobe head ----------------------------------------------------------------------------
 
 
-def train_tiny_lobes(steps: int, seed: int, data: Path) -> tuple[ReshadeNet, float | None]:
+def train_tiny_lobes(
+    steps: int, seed: int, data: Path, head: str = "lobes"
+) -> tuple[ReshadeNet, float | None]:
     """The lobe head from a fixed seed, its last convolution drawn with a visible spread and
     frozen, then `steps` of masked L1 on the shaded output for the rest; returns the network
     and its last-50-step loss."""
     torch.manual_seed(seed)
-    cfg = replace(net_config(WIDTHS), head="lobes", lobes=LOBE_COUNT, deadzone=LOBE_DEADZONE)
+    lobes = SLIDE_LOBES if head == "lobes-slide" else LOBE_COUNT
+    cfg = replace(net_config(WIDTHS), head=head, lobes=lobes, deadzone=LOBE_DEADZONE)
     net = ReshadeNet(cfg)
     torch.nn.init.normal_(net.decoder.out.weight, std=LOBE_INIT_STD)
+    k = len(LOBE_LAYOUT) * lobes
     with torch.no_grad():
-        net.decoder.out.bias[3 :: len(LOBE_LAYOUT)] = LOBE_SHARPNESS_BIAS
+        net.decoder.out.bias[3 : k : len(LOBE_LAYOUT)] = LOBE_SHARPNESS_BIAS
+        if head == "lobes-slide":
+            net.decoder.out.bias[k : k + 3] = SLIDE_FRACTION_RAW_BIAS
     net.decoder.out.requires_grad_(False)
     opt = torch.optim.Adam([p for p in net.parameters() if p.requires_grad], lr=1e-3)
     losses = []
@@ -263,6 +279,7 @@ def shaded(net: ReshadeNet, lobes: torch.Tensor, base: dict, camera) -> np.ndarr
             base["rays"],
             torch.tensor([camera], dtype=torch.float32),
             net.cfg.deadzone,
+            head=net.cfg.head,
         )
         .clamp(0.0, 1.0)
         .numpy()
@@ -287,7 +304,7 @@ def lobe_parity_record(
         cases.append({"camera": list(cam), "reshaded": _b64(ref), "reshaded_int8": _b64(qref)})
     measured = {}
     for precision in ("fp32", "fp16", "int8"):
-        stem = lobe_stem(precision)
+        stem = lobe_stem(precision, net.cfg.head)
         (got,) = run_onnxruntime((out / f"{stem}.onnx").read_bytes(), base)
         worst = mean = 0.0
         for cam, ref in zip(
@@ -307,9 +324,10 @@ def lobe_parity_record(
     intrinsics = parity_intrinsics(height, width)
     return {
         "format": "reshader-lobe-parity/1",
-        "model": f"{STEM}-<precision>-lobes",
+        "model": f"{fixture_stem(net.cfg.head)}-<precision>-lobes",
         "height": height,
         "width": width,
+        "head": net.cfg.head,
         "lobes": net.cfg.lobes,
         "deadzone": net.cfg.deadzone,
         "camera": {
@@ -326,7 +344,8 @@ def lobe_parity_record(
             "image_sum": float(image.astype(np.float64).sum()),
             "disparity_sum": float(base["disparity"].numpy().astype(np.float64).sum()),
         },
-        "outputs": "float32 little-endian, base64, NCHW: lobes [1,7K,H,W] of the PyTorch fp32 "
+        "outputs": "float32 little-endian, base64, NCHW: lobes [1,C,H,W] (the head's fields) "
+        "of the PyTorch fp32 "
         "network; per camera reshaded [1,3,H,W] = clamp(shade_lobes(...), 0, 1) on those lobes "
         "(reshaded) and on the weights-only fake-quantised network's (reshaded_int8)",
         "lobes_fp32": _b64(lobes.numpy()),
@@ -345,17 +364,29 @@ def lobe_parity_record(
     }
 
 
-def lobe_stem(precision: str) -> str:
-    """The graph's name without the -lobes suffix export adds (int8: weights-only, -wo)."""
-    return f"{STEM}-{'int8-wo' if precision == 'int8' else precision}{LOBES.suffix}"
+def fixture_stem(head: str) -> str:
+    return SLIDE_STEM if head == "lobes-slide" else STEM
 
 
-def make_lobe_fixture(out: Path, steps: int, seed: int, examples: int, height: int, width: int):
+def lobe_stem(precision: str, head: str = "lobes") -> str:
+    """The graph's name with the -lobes suffix export adds (int8: weights-only, -wo)."""
+    return f"{fixture_stem(head)}-{'int8-wo' if precision == 'int8' else precision}{LOBES.suffix}"
+
+
+def make_lobe_fixture(
+    out: Path,
+    steps: int,
+    seed: int,
+    examples: int,
+    height: int,
+    width: int,
+    head: str = "lobes",
+):
     t0 = time.time()
     torch.set_num_threads(1)
     with tempfile.TemporaryDirectory() as tmp:
         data = write_dataset(Path(tmp) / "synthetic", examples, 64, 64, seed=seed)
-        net, loss = train_tiny_lobes(steps, seed, data)
+        net, loss = train_tiny_lobes(steps, seed, data, head)
         qnet = quantize_network(copy.deepcopy(net))
         calibrate(qnet, training_crops(data, 8, 8, 64, seed + 1))
         set_input_quantization(qnet, False)  # the weights-only form the runtime ships
@@ -363,7 +394,7 @@ def make_lobe_fixture(out: Path, steps: int, seed: int, examples: int, height: i
         n_examples = len(ReshadeDataset(data))
     wall = round(time.time() - t0, 1)
     command = (
-        f"reshader-train fixture --head lobes --out {out} --steps {steps} --seed {seed} "
+        f"reshader-train fixture --head {head} --out {out} --steps {steps} --seed {seed} "
         f"--examples {examples} --height {height} --width {width}"
     )
     info = ExportInfo(
@@ -372,7 +403,9 @@ def make_lobe_fixture(out: Path, steps: int, seed: int, examples: int, height: i
             "command": command,
             "data": f"synthetic.write_dataset({examples} examples, 64x64, seed {seed}); "
             f"crops 64, {Augment()}; last conv drawn with std {LOBE_INIT_STD}, sharpness "
-            f"bias {LOBE_SHARPNESS_BIAS}, frozen",
+            f"bias {LOBE_SHARPNESS_BIAS}"
+            + (f", fraction bias {SLIDE_FRACTION_RAW_BIAS}" if head == "lobes-slide" else "")
+            + ", frozen",
             "feature_network": "none (masked L1 only: a test fixture)"
             if steps
             else "none (not trained: a test fixture)",
@@ -383,7 +416,7 @@ def make_lobe_fixture(out: Path, steps: int, seed: int, examples: int, height: i
         source=f"{command} (torch {torch.__version__})",
     )
     for precision, model in (("fp32", net), ("fp16", net), ("int8", qnet)):
-        stem = lobe_stem(precision).removesuffix(LOBES.suffix)
+        stem = lobe_stem(precision, head).removesuffix(LOBES.suffix)
         form = "weights" if precision == "int8" else "qdq"
         if precision == "int8":
             quantization = {**SCHEME, "regions": INT8_FORMS[form], "form": form, "method": "ptq"}
@@ -397,10 +430,10 @@ def make_lobe_fixture(out: Path, steps: int, seed: int, examples: int, height: i
 
 
 def run(args: argparse.Namespace) -> int:
-    if args.head == "lobes":
+    if args.head != "residual":
         steps = LOBE_STEPS if args.steps is None else args.steps
         record = make_lobe_fixture(
-            args.out, steps, args.seed, args.examples, args.height, args.width
+            args.out, steps, args.seed, args.examples, args.height, args.width, args.head
         )
         print(json.dumps({k: record[k] for k in ("precisions", "camera_dependence")}, indent=1))
         return 0

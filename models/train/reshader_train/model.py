@@ -438,6 +438,8 @@ def flow_change(
 # depth: were it zero or on the surface, moving it would change nothing, and neither field
 # would have a gradient to learn from. rho spans SLIDE_DEPTH_INIT -+ 1.
 SLIDE_FRACTION_BIAS = -3.0
+# The lobes-slide head's channels after its lobes.
+SLIDE_LAYOUT = ("fraction_r", "fraction_g", "fraction_b", "rho")
 SLIDE_DEPTH_INIT = 0.5
 # The layer's point must stay in front of a forward-moving camera: 1 - 4 d c_z is floored.
 SLIDE_MIN_DEPTH_RATIO = 0.05
@@ -542,9 +544,11 @@ class ReshadeNet(nn.Module):
         disparity: torch.Tensor,
         camera: torch.Tensor,
         rays: torch.Tensor | None = None,
-    ) -> torch.Tensor:
+        fields: bool = False,
+    ):
         """The reshaded image. `rays` (B,3,H,W), K^-1 [u, v, 1] per pixel, is needed by the
-        lobe head only (the other heads never see the geometry of the camera).
+        lobe head only (the other heads never see the geometry of the camera). With
+        `fields`, a lobe head returns (image, its fields) (for `train --teacher`).
 
         `camera` (B,N,3), N cameras per photo, gives (B,N,3,H,W): the encoder runs once per
         photo, and so does the lobe head's decoder (only the closed form runs per camera);
@@ -571,7 +575,12 @@ class ReshadeNet(nn.Module):
                 )
                 for c in cameras
             ]
-        return torch.stack(out, 1) if many else out[0]
+        views = torch.stack(out, 1) if many else out[0]
+        if fields:
+            if self.lobe_field is None:
+                raise ValueError(f"the {self.cfg.head} head has no fields")
+            return views, lobes
+        return views
 
     def lobes(self, image: torch.Tensor, disparity: torch.Tensor, rays: torch.Tensor):
         """The lobe head's once-per-photo output (B, 7K, H, W)."""

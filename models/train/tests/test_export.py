@@ -568,7 +568,7 @@ def test_lobe_graph_matches_pytorch_and_shades_like_it(lobe_exported, precision)
     with torch.no_grad():
         ref = net.lobes(feed["image"], feed["disparity"], feed["rays"]).numpy()
     assert got.shape == (1, 14, H, W)
-    diff = np.abs(comparable_lobes(got) - comparable_lobes(ref))
+    diff = np.abs(comparable_lobes(got, 2) - comparable_lobes(ref, 2))
     assert diff.max() <= TOLERANCE[precision] and diff.mean() <= MEAN_TOLERANCE[precision]
 
     def shade(lobes, camera):
@@ -579,6 +579,48 @@ def test_lobe_graph_matches_pytorch_and_shades_like_it(lobe_exported, precision)
         theirs, ours = shade(got, camera), shade(ref, camera)
         assert np.abs(theirs - ours).max() <= {"fp32": 1e-4, "fp16": 2e-2, "int8": 1e-4}[precision]
         assert np.abs(ours - feed["image"].numpy()).max() > 0.05  # a visible change
+    assert np.array_equal(shade(got, (0.0, 0.0, 0.0)), feed["image"].numpy())
+
+
+def slide_net():
+    from dataclasses import replace
+
+    torch.manual_seed(1)
+    cfg = replace(net_config(LOBE_TINY), head="lobes-slide", lobes=1, deadzone=0.004)
+    net = ReshadeNet(cfg)
+    torch.nn.init.normal_(net.decoder.out.weight, std=0.3)
+    with torch.no_grad():
+        net.decoder.out.bias[7:10] = 3.0  # half the photo slides: a visible layer
+    return net.eval()
+
+
+@pytest.mark.parametrize("precision", ["fp32", "fp16"])
+def test_lobes_slide_exports_its_layer_and_shades_like_pytorch(tmp_path, precision):
+    from reshader_train.export import run_onnxruntime
+    from reshader_train.model import SLIDE_LAYOUT, shade_lobes
+
+    net = slide_net()
+    info = ExportInfo(size="tiny", validation={})
+    (path,) = export_precision(net, precision, tmp_path, "slide", info, False, H, W)
+    m = json.loads(path.read_text())
+    assert (m["head"], m["lobes"], m["architecture"]["lobes"]) == ("lobes-slide", 1, 1)
+    assert m["channels"][7:] == list(SLIDE_LAYOUT) and m["outputs"][0]["shape"][1] == 11
+    assert "lobes-slide adds" in m["shading"]
+    feed = lobe_feed()
+    (got,) = run_onnxruntime((tmp_path / m["file"]).read_bytes(), feed)
+    with torch.no_grad():
+        ref = net.lobes(feed["image"], feed["disparity"], feed["rays"])
+
+    def shade(fields, camera):
+        args = (feed["image"], torch.as_tensor(fields), feed["disparity"], feed["rays"])
+        c = torch.tensor([camera])
+        return shade_lobes(*args, c, 0.004, head="lobes-slide").clamp(0, 1).numpy()
+
+    tol = {"fp32": 1e-4, "fp16": 3e-2}[precision]  # fp16 rounds rho: the layer shifts a little
+    for camera in ((0.2, -0.1, 0.15), (0.5, 0.0, 0.0)):
+        ours = shade(ref, camera)
+        assert np.abs(shade(got, camera) - ours).max() <= tol
+        assert np.abs(ours - feed["image"].numpy()).max() > 0.05
     assert np.array_equal(shade(got, (0.0, 0.0, 0.0)), feed["image"].numpy())
 
 
@@ -594,7 +636,6 @@ def lobe_checkpoint(tmp_path, data):
     "change, reason",
     [
         ({"domain": "linear"}, "linear domain"),
-        ({"head": "lobes-slide"}, "lobes-slide head is for training experiments"),
         ({"head": "lobes-flow"}, "lobes-flow head is for training experiments"),
     ],
 )
@@ -647,34 +688,42 @@ def test_cli_exports_a_lobe_checkpoint_and_quantize_fine_tunes_it(data, tmp_path
 
 
 @pytest.mark.skipif(not (FIXTURES / "parity-lobes.json").exists(), reason="fixture not generated")
-def test_committed_lobe_fixture_is_consistent():
-    from reshader_train.model import shade_lobes
+@pytest.mark.parametrize("folder, head", [(".", "lobes"), ("slide", "lobes-slide")])
+def test_committed_lobe_fixture_is_consistent(folder, head):
+    from reshader_train.model import lobe_head_channels, shade_lobes
 
-    parity = json.loads((FIXTURES / "parity-lobes.json").read_text())
+    fixtures = FIXTURES / folder
+    parity = json.loads((fixtures / "parity-lobes.json").read_text())
+    assert parity.get("head", "lobes") == head
     h, w, k = parity["height"], parity["width"], parity["lobes"]
     base = parity_inputs(h, w)
     cam = parity["camera"]
     assert float(base["image"].double().sum()) == pytest.approx(parity["input"]["image_sum"])
     assert float(base["rays"][0, 0, 0, 0]) == pytest.approx(-cam["cx"] / cam["fx"])
     lobes = np.frombuffer(base64.b64decode(parity["lobes_fp32"]), dtype="<f4")
-    lobes = torch.from_numpy(lobes.reshape(1, 7 * k, h, w).copy())
+    lobes = torch.from_numpy(lobes.reshape(1, lobe_head_channels(head, k), h, w).copy())
     for precision, p in parity["precisions"].items():
-        m = json.loads((FIXTURES / p["model"]).read_text())
-        assert (m["task"], m["precision"], m["lobes"]) == ("reshade-lobes", precision, k)
-        data = (FIXTURES / m["file"]).read_bytes()
+        m = json.loads((fixtures / p["model"]).read_text())
+        assert (m["task"], m["precision"], m["lobes"], m["head"]) == (
+            "reshade-lobes",
+            precision,
+            k,
+            head,
+        )
+        data = (fixtures / m["file"]).read_bytes()
         assert hashlib.sha256(data).hexdigest() == m["sha256"]
         (got,) = run_onnxruntime(data, base)
         for case in parity["cases"]:
             c = torch.tensor([case["camera"]])
-            view = shade_lobes(base["image"], torch.from_numpy(got), base["disparity"],
-                               base["rays"], c, parity["deadzone"]).clamp(0, 1).numpy()  # fmt: skip
+            args = (base["image"], torch.from_numpy(got), base["disparity"], base["rays"], c)
+            view = shade_lobes(*args, parity["deadzone"], head=head).clamp(0, 1).numpy()
             assert np.abs(view - decode(case[p["reference"]], h, w)).max() <= p["tolerance"]
     # The stored lobes shade to the stored fp32 views. Not bit for bit: torch releases
     # round exp and the normalisations differently (up to 3e-6 seen), a thousandth of a level.
     for case in parity["cases"]:
         c = torch.tensor([case["camera"]])
         view = shade_lobes(base["image"], lobes, base["disparity"], base["rays"], c,
-                           parity["deadzone"]).clamp(0, 1).numpy()  # fmt: skip
+                           parity["deadzone"], head=head).clamp(0, 1).numpy()  # fmt: skip
         assert np.abs(view - decode(case["reshaded"], h, w)).max() <= 1e-5
     dep = parity["camera_dependence"]
     assert dep["[0.0, 0.0, 0.0]"]["max_abs_change"] == 0.0

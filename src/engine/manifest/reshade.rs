@@ -54,6 +54,9 @@ pub const LOBE_LAYOUT: [&str; 7] = [
     "amp_g",
     "amp_b",
 ];
+/// The channels a `lobes-slide` graph gives after its lobes: the share of the photo per
+/// colour that slides as a reflected image, and how far behind the surface that image lies.
+pub const SLIDE_LAYOUT: [&str; 4] = ["fraction_r", "fraction_g", "fraction_b", "rho"];
 /// Lobes per pixel the training toolchain can make (NetConfig: 1..8).
 pub const MAX_LOBES: u64 = 8;
 /// The encoding the lobe head's change is summed in.
@@ -66,11 +69,22 @@ pub struct LobeSpec {
     pub lobes: usize,
     /// Soft threshold of the summed change, in display units.
     pub deadzone: f32,
+    /// Head `lobes-slide`: the graph also gives a sliding layer ([`SLIDE_LAYOUT`]).
+    pub slide: bool,
 }
 
 impl LobeSpec {
     pub fn channels(&self) -> usize {
-        LOBE_LAYOUT.len() * self.lobes
+        LOBE_LAYOUT.len() * self.lobes + if self.slide { SLIDE_LAYOUT.len() } else { 0 }
+    }
+
+    /// The manifest's name of the head.
+    pub fn head(&self) -> &'static str {
+        if self.slide {
+            "lobes-slide"
+        } else {
+            "lobes"
+        }
     }
 }
 
@@ -79,16 +93,22 @@ impl LobeSpec {
 /// dead zone and domain.
 pub fn lobe_spec(path: &Path, manifest: &Manifest) -> Result<LobeSpec, ManifestError> {
     let err = |field: &str, problem: String| Err(field_error(path, field, problem));
-    match manifest.head.as_deref() {
-        Some("lobes") => {}
-        Some(other) => return err("head", format!("is {other:?}; expected \"lobes\"")),
+    let slide = match manifest.head.as_deref() {
+        Some("lobes") => false,
+        Some("lobes-slide") => true,
+        Some(other) => {
+            return err(
+                "head",
+                format!("is {other:?}; expected \"lobes\" or \"lobes-slide\""),
+            )
+        }
         None => {
             return err(
                 "head",
-                "is missing (a reshade-lobes manifest says \"lobes\")".into(),
+                "is missing (a reshade-lobes manifest says \"lobes\" or \"lobes-slide\")".into(),
             )
         }
-    }
+    };
     let k = match manifest.lobes {
         Some(k) if (1..=MAX_LOBES).contains(&k) => k as usize,
         Some(k) => return err("lobes", format!("is {k}; expected 1..={MAX_LOBES}")),
@@ -105,13 +125,19 @@ pub fn lobe_spec(path: &Path, manifest: &Manifest) -> Result<LobeSpec, ManifestE
         None => return err("lobe_layout", "is missing".into()),
     }
     if let Some(channels) = &manifest.channels {
-        let expected: Vec<String> = (0..k)
+        let mut expected: Vec<String> = (0..k)
             .flat_map(|j| LOBE_LAYOUT.iter().map(move |n| format!("{n}{j}")))
             .collect();
+        if slide {
+            expected.extend(SLIDE_LAYOUT.iter().map(|n| n.to_string()));
+        }
         if *channels != expected {
             return err(
                 "channels",
-                format!("are {channels:?}; {k} lobes of {LOBE_LAYOUT:?} are {expected:?}"),
+                format!(
+                    "are {channels:?}; head {:?} with {k} lobes gives {expected:?}",
+                    manifest.head.as_deref().unwrap_or_default()
+                ),
             );
         }
     }
@@ -138,7 +164,11 @@ pub fn lobe_spec(path: &Path, manifest: &Manifest) -> Result<LobeSpec, ManifestE
             );
         }
     }
-    let spec = LobeSpec { lobes: k, deadzone };
+    let spec = LobeSpec {
+        lobes: k,
+        deadzone,
+        slide,
+    };
     let (i, out) = manifest
         .outputs
         .iter()
@@ -149,8 +179,9 @@ pub fn lobe_spec(path: &Path, manifest: &Manifest) -> Result<LobeSpec, ManifestE
         return err(
             &format!("outputs[{i}].shape"),
             format!(
-                "of \"lobes\" has {} channels; {k} lobes (field `lobes`) need {}",
+                "of \"lobes\" has {} channels; head {:?} with {k} lobes (field `lobes`) needs {}",
                 out.shape.get(1).map_or("no".into(), Dim::to_string),
+                spec.head(),
                 spec.channels()
             ),
         );

@@ -12,7 +12,21 @@
 //! ```
 //!
 //! with d the network's disparity input (0.25 / depth) and r = K⁻¹[u, v, 1] the pixel's ray
-//! at the network's resolution (pixel centres at integer coordinates, OpenCV axes). This is
+//! at the network's resolution (pixel centres at integer coordinates, OpenCV axes).
+//!
+//! The `lobes-slide` head adds, before the threshold, a layer of the photo that moves as a
+//! reflected image does (model.slide_change): per pixel the share f of the photo (per
+//! colour) that is such light, S = photo·f, and ρ, how far behind the surface its image
+//! lies (0 on the surface, 1 at infinity). A view moves S by the parallax its depth has
+//! relative to the surface and samples it back:
+//!
+//! ```text
+//! p(z)    = (r − z·c)_xy / max((r − z·c)_z, 0.05)      (a point at z·0.25/d… seen from c)
+//! s       = p(q·(1 − ρ)) − p(q),  q = d / 0.25           (normalised units; × fx, fy in px)
+//! change += S(x − s_x·fx, y − s_y·fy) − S(x, y)          (bilinear, clamped to the image)
+//! ```
+//!
+//! This is
 //! `shade_lobes` of the training toolchain's model.py, operation for operation in f32, so
 //! that c = 0 gives the photo exactly and other cameras match PyTorch to float rounding.
 //!
@@ -51,9 +65,11 @@ const DISPARITY_DEPTH: f32 = 0.25;
 /// PyTorch's guard in view_directions: v / sqrt(|v|² + 1e-12).
 const NORM_EPS: f32 = 1e-12;
 /// Floats per pixel in [`LobeField`]: d/0.25, the ray (3), then per lobe μ (3), λ,
-/// a (3) and the lobe's value towards the input camera.
+/// a (3) and the lobe's value towards the input camera, then (lobes-slide) ρ.
 const GEOMETRY: usize = 4;
 const PER_LOBE_STORED: usize = PER_LOBE + 1;
+/// model.SLIDE_MIN_DEPTH_RATIO: the layer's point stays in front of a forward-moving camera.
+const SLIDE_MIN_DEPTH_RATIO: f32 = 0.05;
 
 fn is_lobes(task: Task) -> bool {
     task == Task::ReshadeLobes
@@ -72,6 +88,15 @@ fn direction(q: f32, r: [f32; 3], c: [f32; 3]) -> [f32; 3] {
 #[inline]
 fn lobe_value(mu: [f32; 3], sharpness: f32, w: [f32; 3]) -> f32 {
     (sharpness * (mu[0] * w[0] + mu[1] * w[1] + mu[2] * w[2] - 1.0)).exp()
+}
+
+/// Normalised image coordinates of the point at disparity ratio `z` along ray `r`, seen from
+/// camera centre `c` (model.project_from).
+#[inline]
+fn project(z: f32, r: [f32; 3], c: [f32; 3]) -> [f32; 2] {
+    let q = [r[0] - z * c[0], r[1] - z * c[1], r[2] - z * c[2]];
+    let depth = q[2].max(SLIDE_MIN_DEPTH_RATIO);
+    [q[0] / depth, q[1] / depth]
 }
 
 /// model.shrink: 0 where |x| <= t, x ∓ t beyond (written as PyTorch's two ReLUs).
@@ -111,18 +136,24 @@ pub struct LobeField {
     width: usize,
     height: usize,
     spec: LobeSpec,
-    /// [`GEOMETRY`] + K · [`PER_LOBE_STORED`] floats per pixel, row-major.
+    /// [`GEOMETRY`] + K · [`PER_LOBE_STORED`] (+ 1 for ρ) floats per pixel, row-major.
     data: Vec<f32>,
+    /// lobes-slide: the sliding layer S = photo · fraction, RGB per pixel; else empty.
+    layer: Vec<f32>,
+    /// Pixels per unit of normalised coordinate, from the rays as PyTorch takes them.
+    focal: [f32; 2],
 }
 
 impl LobeField {
-    /// The field from the graph's output `lobes` (planar [7K, H, W], padding cropped), the
-    /// disparity input `disparity` ([H, W]) and the rays `rays` (planar [3, H, W]).
+    /// The field from the graph's output `lobes` (planar [C, H, W], padding cropped) and
+    /// its inputs: `image` (planar [3, H, W]; a lobes-slide layer is a share of it), the
+    /// disparity `disparity` ([H, W]) and the rays `rays` (planar [3, H, W]).
     pub fn new(
         spec: LobeSpec,
         width: usize,
         height: usize,
         lobes: &[f32],
+        image: &[f32],
         disparity: &[f32],
         rays: &[f32],
     ) -> Result<Self, NetError> {
@@ -130,6 +161,7 @@ impl LobeField {
         let k = spec.lobes;
         for (name, len, planes) in [
             ("lobes", lobes.len(), spec.channels()),
+            ("image", image.len(), 3),
             ("disparity", disparity.len(), 1),
             ("rays", rays.len(), 3),
         ] {
@@ -140,7 +172,7 @@ impl LobeField {
                 )));
             }
         }
-        let stride = GEOMETRY + k * PER_LOBE_STORED;
+        let stride = Self::stride(spec);
         let mut data = vec![0.0f32; stride * plane];
         for (i, px) in data.chunks_exact_mut(stride).enumerate() {
             let q = disparity[i] / DISPARITY_DEPTH;
@@ -157,12 +189,38 @@ impl LobeField {
                 l[PER_LOBE] = lobe_value([l[0], l[1], l[2]], l[3], w0);
             }
         }
+        let mut layer = Vec::new();
+        if spec.slide {
+            let extra = PER_LOBE * k;
+            layer = vec![0.0f32; 3 * plane];
+            for i in 0..plane {
+                for c in 0..3 {
+                    layer[3 * i + c] = image[c * plane + i] * lobes[(extra + c) * plane + i];
+                }
+                data[i * stride + stride - 1] = lobes[(extra + 3) * plane + i];
+            }
+        }
+        // As model.slide_change: one over the rays' step between neighbouring pixels.
+        let step = |a: usize, b: usize, len: usize| {
+            if len > 1 {
+                1.0 / (rays[b] - rays[a])
+            } else {
+                1.0
+            }
+        };
+        let focal = [step(0, 1, width), step(plane, plane + width, height)];
         Ok(Self {
             width,
             height,
             spec,
             data,
+            layer,
+            focal,
         })
+    }
+
+    fn stride(spec: LobeSpec) -> usize {
+        GEOMETRY + spec.lobes * PER_LOBE_STORED + usize::from(spec.slide)
     }
 
     pub fn width(&self) -> usize {
@@ -180,18 +238,57 @@ impl LobeField {
     /// The thresholded change of pixel `i` for a camera at `c`.
     #[inline]
     fn change_at(&self, i: usize, c: [f32; 3]) -> [f32; 3] {
-        let stride = GEOMETRY + self.spec.lobes * PER_LOBE_STORED;
+        let stride = Self::stride(self.spec);
         let px = &self.data[i * stride..][..stride];
-        let w = direction(px[0], [px[1], px[2], px[3]], c);
+        let r = [px[1], px[2], px[3]];
+        let w = direction(px[0], r, c);
         let mut change = [0.0f32; 3];
-        for l in px[GEOMETRY..].chunks_exact(PER_LOBE_STORED) {
+        let lobes = &px[GEOMETRY..GEOMETRY + self.spec.lobes * PER_LOBE_STORED];
+        for l in lobes.chunks_exact(PER_LOBE_STORED) {
             let d = lobe_value([l[0], l[1], l[2]], l[3], w) - l[PER_LOBE];
             change[0] += l[4] * d;
             change[1] += l[5] * d;
             change[2] += l[6] * d;
         }
+        if self.spec.slide {
+            let moved = self.slid(i, px[0], px[stride - 1], r, c);
+            for (ch, m) in change.iter_mut().zip(moved) {
+                *ch += m;
+            }
+        }
         let t = self.spec.deadzone;
         change.map(|v| shrink(v, t))
+    }
+
+    /// The sliding layer's change at pixel `i` (disparity ratio `q`, layer depth share `rho`,
+    /// ray `r`) for a camera at `c`: the layer sampled from where its parallax brings it,
+    /// less the layer there (model.slide_change, grid_sample bilinear with border padding).
+    #[inline]
+    fn slid(&self, i: usize, q: f32, rho: f32, r: [f32; 3], c: [f32; 3]) -> [f32; 3] {
+        let layer = project(q * (1.0 - rho), r, c);
+        let surface = project(q, r, c);
+        let (w, h) = (self.width, self.height);
+        let x = (i % w) as f32 - (layer[0] - surface[0]) * self.focal[0];
+        let y = (i / w) as f32 - (layer[1] - surface[1]) * self.focal[1];
+        let x = if x.is_nan() {
+            0.0
+        } else {
+            x.clamp(0.0, (w - 1) as f32)
+        };
+        let y = if y.is_nan() {
+            0.0
+        } else {
+            y.clamp(0.0, (h - 1) as f32)
+        };
+        let (x0, y0) = (x.floor() as usize, y.floor() as usize);
+        let (x1, y1) = ((x0 + 1).min(w - 1), (y0 + 1).min(h - 1));
+        let (fx, fy) = (x - x0 as f32, y - y0 as f32);
+        let at = |xx: usize, yy: usize, ch: usize| self.layer[3 * (yy * w + xx) + ch];
+        std::array::from_fn(|ch| {
+            let top = at(x0, y0, ch) * (1.0 - fx) + at(x1, y0, ch) * fx;
+            let bottom = at(x0, y1, ch) * (1.0 - fx) + at(x1, y1, ch) * fx;
+            top * (1.0 - fy) + bottom * fy - self.layer[3 * i + ch]
+        })
     }
 
     /// The thresholded change for a camera at `centre`, interleaved RGB per pixel, computed
@@ -466,7 +563,7 @@ impl LobeReshader {
             }
         };
         let lobes = resample::crop(&lobes.data, pw, ph, ww, wh);
-        let field = LobeField::new(self.spec, ww, wh, &lobes, &work_disparity, &rays)?;
+        let field = LobeField::new(self.spec, ww, wh, &lobes, &work, &work_disparity, &rays)?;
         Ok(LobePhoto {
             net: self,
             image,
@@ -497,10 +594,11 @@ impl Reshader for LobeReshader {
         let o = &self.options;
         let sha: String = m.sha256.trim().chars().take(12).collect();
         format!(
-            "{} {} ({}, head lobes: {} lobes, dead zone {}, graph {sha}, engine {} x{} threads once per photo at scale {}; closed form per view on {} threads{})",
+            "{} {} ({}, head {}: {} lobes, dead zone {}, graph {sha}, engine {} x{} threads once per photo at scale {}; closed form per view on {} threads{})",
             m.name,
             m.version,
             m.precision,
+            self.spec.head(),
             self.spec.lobes,
             self.spec.deadzone,
             self.engine.name(),

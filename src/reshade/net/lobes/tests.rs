@@ -3,7 +3,11 @@
 use super::*;
 
 fn spec(lobes: usize, deadzone: f32) -> LobeSpec {
-    LobeSpec { lobes, deadzone }
+    LobeSpec {
+        lobes,
+        deadzone,
+        slide: false,
+    }
 }
 
 /// One pixel straight ahead at depth 1 (d = 0.25), one lobe around the input camera's
@@ -13,7 +17,16 @@ fn spec(lobes: usize, deadzone: f32) -> LobeSpec {
 #[test]
 fn the_closed_form_matches_hand_computed_values() {
     let lobes = [0.0, 0.0, -1.0, 50.0, 0.4, 0.2, -0.2];
-    let field = LobeField::new(spec(1, 0.0), 1, 1, &lobes, &[0.25], &[0.0, 0.0, 1.0]).unwrap();
+    let field = LobeField::new(
+        spec(1, 0.0),
+        1,
+        1,
+        &lobes,
+        &[0.5; 3],
+        &[0.25],
+        &[0.0, 0.0, 1.0],
+    )
+    .unwrap();
     let drop = (50.0 * (1.0 / 1.09f64.sqrt() - 1.0)).exp() - 1.0;
     let expected = [0.4 * drop, 0.2 * drop, -0.2 * drop];
     let got = field.change([0.3, 0.0, 0.0], 1);
@@ -69,7 +82,7 @@ fn two_lobes_add_and_the_dead_zone_soft_thresholds() {
     let d2 = g(mu2, 2.0, w) - g(mu2, 2.0, w0);
     let change = [0.3 * d1, 0.1 * d1 + 0.05 * d2, -0.5 * d2];
     for t in [0.0f32, 0.004, 0.05] {
-        let field = LobeField::new(spec(2, t), 1, 1, &lobes, &[d], &ray).unwrap();
+        let field = LobeField::new(spec(2, t), 1, 1, &lobes, &[0.5; 3], &[d], &ray).unwrap();
         let got = field.change(c, 1);
         for ch in 0..3 {
             let x = change[ch];
@@ -94,7 +107,16 @@ fn two_lobes_add_and_the_dead_zone_soft_thresholds() {
 fn the_sky_is_seen_along_its_ray_from_any_camera() {
     // Disparity 0: w = normalize(−r) whatever the camera, so nothing changes.
     let lobes = [0.0, 0.0, -1.0, 5.0, 1.0, 1.0, 1.0];
-    let field = LobeField::new(spec(1, 0.0), 1, 1, &lobes, &[0.0], &[0.3, 0.1, 1.0]).unwrap();
+    let field = LobeField::new(
+        spec(1, 0.0),
+        1,
+        1,
+        &lobes,
+        &[0.5; 3],
+        &[0.0],
+        &[0.3, 0.1, 1.0],
+    )
+    .unwrap();
     assert_eq!(field.change([0.4, -0.2, 0.3], 1), [0.0; 3]);
 }
 
@@ -132,14 +154,103 @@ fn rays_follow_the_scaled_intrinsics_with_integer_pixel_centres() {
 
 #[test]
 fn wrong_sizes_are_refused() {
-    let msg = LobeField::new(spec(2, 0.0), 2, 2, &[0.0; 7 * 4], &[0.0; 4], &[0.0; 12])
-        .unwrap_err()
-        .to_string();
+    let msg = LobeField::new(
+        spec(2, 0.0),
+        2,
+        2,
+        &[0.0; 7 * 4],
+        &[0.0; 12],
+        &[0.0; 4],
+        &[0.0; 12],
+    )
+    .unwrap_err()
+    .to_string();
     assert!(msg.contains("lobes") && msg.contains("56"), "{msg}");
-    let field = LobeField::new(spec(1, 0.0), 2, 1, &[0.0; 14], &[0.0; 2], &[0.0; 6]).unwrap();
+    let field = LobeField::new(
+        spec(1, 0.0),
+        2,
+        1,
+        &[0.0; 14],
+        &[0.0; 6],
+        &[0.0; 2],
+        &[0.0; 6],
+    )
+    .unwrap();
     let msg = field
         .reshade(&SrgbImage::new(3, 1), [0.1, 0.0, 0.0], 1)
         .unwrap_err()
         .to_string();
     assert!(msg.contains("3x1") && msg.contains("2x1"), "{msg}");
+}
+
+/// A row of 9 pixels at depth 1 (d = 0.25), rays 0.1 apart (fx = 10 px), one lobe of zero
+/// amplitude and a sliding layer that is all of a photo with one bright pixel at x = 4.
+fn slide_row(rho: f32) -> LobeField {
+    let (w, plane) = (9usize, 9usize);
+    let mut lobes = vec![0.0f32; (7 + 4) * plane];
+    for i in 0..plane {
+        lobes[2 * plane + i] = -1.0; // μ_z
+        lobes[3 * plane + i] = 10.0; // λ
+        for c in 0..3 {
+            lobes[(7 + c) * plane + i] = 1.0; // the whole photo slides
+        }
+        lobes[10 * plane + i] = rho;
+    }
+    let mut image = vec![0.1f32; 3 * plane];
+    for c in 0..3 {
+        image[c * plane + 4] = 0.9;
+    }
+    let mut rays = vec![1.0f32; 3 * plane];
+    for x in 0..w {
+        rays[x] = (x as f32 - 4.0) / 10.0;
+        rays[plane + x] = 0.0;
+    }
+    let spec = LobeSpec {
+        lobes: 1,
+        deadzone: 0.0,
+        slide: true,
+    };
+    LobeField::new(spec, w, 1, &lobes, &image, &[0.25; 9], &rays).unwrap()
+}
+
+#[test]
+fn a_reflection_at_infinity_slides_by_the_surface_s_parallax() {
+    // ρ = 1: the layer is at infinity, p(0) − p(1) = tx, so a camera 0.2 to the right
+    // shifts it by 0.2 · 10 = 2 px across a surface at depth 1 (model.py's
+    // test_slide_moves_a_highlight_by_its_layer_s_parallax).
+    let field = slide_row(1.0);
+    let change = field.change([0.2, 0.0, 0.0], 1);
+    let red: Vec<f32> = change.chunks_exact(3).map(|px| px[0]).collect();
+    for (x, &v) in red.iter().enumerate() {
+        let want = match x {
+            4 => -0.8,
+            6 => 0.8,
+            _ => 0.0,
+        };
+        assert!((v - want).abs() < 1e-5, "x {x}: {v} vs {want} ({red:?})");
+    }
+    // The input camera: exactly the photo, to the bit.
+    assert!(field.change([0.0; 3], 2).iter().all(|&v| v == 0.0));
+}
+
+#[test]
+fn a_layer_on_the_surface_never_moves() {
+    let field = slide_row(0.0);
+    for c in [[0.3, 0.0, 0.0], [-0.2, 0.1, 0.4]] {
+        assert!(field.change(c, 1).iter().all(|&v| v.abs() < 1e-6), "{c:?}");
+    }
+}
+
+#[test]
+fn a_slide_field_needs_its_four_extra_channels() {
+    let spec = LobeSpec {
+        lobes: 1,
+        deadzone: 0.0,
+        slide: true,
+    };
+    assert_eq!(spec.channels(), 11);
+    let msg = LobeField::new(spec, 1, 1, &[0.0; 7], &[0.0; 3], &[0.0], &[0.0; 3])
+        .unwrap_err()
+        .to_string();
+    assert!(msg.contains("11 planes"), "{msg}");
 }

@@ -37,6 +37,11 @@ COMMANDS = [
         "reshader_train.field_fit",
         "how much a lobe head could gain: fields fitted per example, scored on a held-out camera",
     ),
+    (
+        "teacher",
+        "reshader_train.teacher",
+        "a lobe head's fields fitted to every camera of each example, as targets for train",
+    ),
     ("evaluate", "reshader_train.evaluate", "PSNR/SSIM of input vs reshaded on held-out data"),
     ("export", "reshader_train.export", "ONNX models (fp32/fp16/int8, single/split) + manifests"),
     ("quantize", "reshader_train.quantize", "quantisation-aware int8 fine-tuning of a checkpoint"),

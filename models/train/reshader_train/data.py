@@ -109,6 +109,52 @@ class Target:
 
 
 @dataclass
+class FieldTargets:
+    """A lobe head's fields fitted to an example (`reshader-train teacher`): per pixel the
+    LobeField layout, `lobes` lobes first (their axes are vectors in the camera frame, which
+    the flips and the transpose turn as they turn the rays), then the head's scalars."""
+
+    fields: np.ndarray  # (H, W, C) float16
+    lobes: int
+
+    def flipped(self, axis: int) -> FieldTargets:
+        """Mirrored along image axis 0 (rows: y) or 1 (columns: x); that axis component of
+        every lobe axis changes sign."""
+        f = np.flip(self.fields, axis).copy()
+        f[..., [7 * j + 1 - axis for j in range(self.lobes)]] *= -1
+        return FieldTargets(f, self.lobes)
+
+    def transposed(self) -> FieldTargets:
+        f = self.fields.swapaxes(0, 1).copy()
+        xs, ys = ([7 * j + c for j in range(self.lobes)] for c in (0, 1))
+        f[..., xs + ys] = f[..., ys + xs]
+        return FieldTargets(f, self.lobes)
+
+
+def load_field_targets(folder: Path, name: str, shape: tuple[int, int]) -> FieldTargets:
+    """`<folder>/<name>.npy` (C, H, W) with the head and lobe count of `<folder>/teacher.json`."""
+    path = folder / f"{name}.npy"
+    try:
+        settings = json.loads((folder / "teacher.json").read_text())
+        lobes, head = int(settings["lobes"]), str(settings["head"])
+    except (OSError, ValueError, KeyError, TypeError) as err:
+        raise DatasetError(f"{folder / 'teacher.json'}: unreadable ({err})") from err
+    if head not in TEACHER_HEADS:
+        raise DatasetError(f"{folder / 'teacher.json'}: head {head!r}, expected {TEACHER_HEADS}")
+    try:
+        fields = np.load(path)
+    except (OSError, ValueError) as err:
+        raise DatasetError(f"{path}: cannot read fitted fields ({err}); run `teacher`") from err
+    if fields.ndim != 3 or fields.shape[1:] != shape:
+        raise DatasetError(f"{path}: fields {fields.shape}, expected (C, {shape[0]}, {shape[1]})")
+    return FieldTargets(np.ascontiguousarray(fields.transpose(1, 2, 0)), lobes)
+
+
+# Heads whose fields are lobes and per-pixel scalars, so that a flip turns only the axes.
+TEACHER_HEADS = ("lobes", "lobes-slide")
+
+
+@dataclass
 class Example:
     """One decoded example; HDR colours are float16 to halve the cache. `reshaded`, `mask`
     and `offset` are the first target; `extra` the others (meta.json's extra_targets)."""
@@ -122,6 +168,7 @@ class Example:
     scene: str
     intrinsics: tuple[float, float, float, float]  # fx, fy, cx, cy (pixel centres at integers)
     extra: tuple[Target, ...] = ()
+    teacher: FieldTargets | None = None
 
     @property
     def target_count(self) -> int:
@@ -251,8 +298,11 @@ def _log_uniform(rng: np.random.Generator, lo: float, hi: float) -> float:
 
 
 def _mirror_y_and_transpose(
-    rng: np.random.Generator, planes: tuple[np.ndarray, ...], camera: np.ndarray
-) -> tuple[np.ndarray, ...]:
+    rng: np.random.Generator,
+    planes: tuple[np.ndarray, ...],
+    camera: np.ndarray,
+    teacher: FieldTargets | None,
+) -> tuple:
     """With the x mirror, completes the square's eight symmetries. The camera frame is
     OpenCV's (x right, y down), so mirroring rows negates ty and swapping rows with
     columns swaps tx and ty (of every row of `camera`, one per target). Non-square planes
@@ -262,12 +312,14 @@ def _mirror_y_and_transpose(
         planes = [a[::-1] for a in planes]
         rays = rays[::-1] * np.array([1.0, -1.0, 1.0], dtype=np.float32)
         camera[..., 1] = -camera[..., 1]
+        teacher = teacher.flipped(0) if teacher is not None else None
     h, w = planes[0].shape[:2]
     if h == w and rng.random() < 0.5:
         planes = [a.swapaxes(0, 1) for a in planes]
         rays = rays.swapaxes(0, 1)[..., [1, 0, 2]]
         camera[..., [0, 1]] = camera[..., [1, 0]]
-    return (*planes, rays, camera)
+        teacher = teacher.transposed() if teacher is not None else None
+    return (*planes, rays, camera, teacher)
 
 
 def pick_targets(
@@ -327,6 +379,9 @@ def make_sample(
     hdr_gts = [t.reshaded[win].astype(np.float32) for t in chosen]
     disp = ex.disparity[win]
     masks = [t.mask[win] for t in chosen]
+    teacher = ex.teacher
+    if teacher is not None:
+        teacher = FieldTargets(teacher.fields[win], teacher.lobes)
     rays = pixel_rays(ex.intrinsics, y0, x0, ch, cw)
     camera = np.stack([t.offset for t in chosen]).astype(np.float32)  # (N, 3), a copy
     n = len(chosen)
@@ -345,9 +400,10 @@ def make_sample(
             masks = [a[:, ::-1] for a in masks]
             rays = rays[:, ::-1] * np.array([-1.0, 1.0, 1.0], dtype=np.float32)
             camera[:, 0] = -camera[:, 0]
+            teacher = teacher.flipped(1) if teacher is not None else None
         if aug.dihedral:
-            hdr_in, disp, *planes, rays, camera = _mirror_y_and_transpose(
-                rng, (hdr_in, disp, *hdr_gts, *masks, rays), camera
+            hdr_in, disp, *planes, rays, camera, teacher = _mirror_y_and_transpose(
+                rng, (hdr_in, disp, *hdr_gts, *masks, rays), camera, teacher
             )
             hdr_gts, masks = planes[:n], planes[n:]
         for k in range(n):
@@ -368,6 +424,8 @@ def make_sample(
         "disparity": chw(disp),
         "rays": chw(rays),
     }
+    if teacher is not None:
+        sample["teacher"] = chw(teacher.fields)
     if weights is None:
         sample["target"] = chw(tonemap(hdr_gts[0], exposure, gamma))
         sample["mask"] = chw(masks[0].astype(np.float32))
@@ -384,7 +442,9 @@ class ReshadeDataset(Dataset):
     """Training samples from a dataset folder (or a list of example folders); decoded
     examples are cached per process, by folder. `reuse` hands over another dataset's cache,
     so that a re-listed dataset (train --rescan) decodes only the new examples. `targets`:
-    samples carry that many targets each (see `make_sample`); None, the first alone."""
+    samples carry that many targets each (see `make_sample`); None, the first alone.
+    `teacher`: a folder of fitted fields (`reshader-train teacher`), one per example, that
+    samples carry as "teacher" (C,H,W), augmented with them."""
 
     def __init__(
         self,
@@ -395,6 +455,7 @@ class ReshadeDataset(Dataset):
         limit: int | None = None,
         reuse: ReshadeDataset | None = None,
         targets: int | None = None,
+        teacher: Path | None = None,
     ) -> None:
         folders = list(root) if isinstance(root, list) else list_examples(Path(root))
         self.folders = folders[:limit]
@@ -402,6 +463,7 @@ class ReshadeDataset(Dataset):
         self.augment = augment
         self.cache = cache
         self.targets = targets
+        self.teacher = teacher
         self._examples: dict[Path, Example] = reuse._examples if reuse is not None else {}
         self._rng: np.random.Generator | None = None
         self._rng_pid = -1
@@ -414,6 +476,8 @@ class ReshadeDataset(Dataset):
         ex = self._examples.get(folder)
         if ex is None:
             ex = load_example(folder)
+            if self.teacher is not None:
+                ex.teacher = load_field_targets(self.teacher, ex.name, ex.mask.shape)
             if self.cache:
                 self._examples[folder] = ex
         return ex

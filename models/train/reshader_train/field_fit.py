@@ -46,8 +46,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--json", type=Path, help="write the summary and per-example rows as JSON")
 
 
-def fit_fields(head: str, lobes: int, sample: dict, smooth: int, steps: int, lr: float):
-    """The head's fields (B, C, H, W), fitted to every target of `sample` but the last."""
+def fit_fields(
+    head: str, lobes: int, sample: dict, smooth: int, steps: int, lr: float, held_out: int = 1
+):
+    """The head's fields (B, C, H, W), fitted to every target of `sample` but the last
+    `held_out`."""
     image, disparity, rays = (sample[k][None] for k in ("image", "disparity", "rays"))
     targets, masks, cameras = sample["targets"], sample["masks"], sample["cameras"]
     h, w = image.shape[2:]
@@ -67,7 +70,7 @@ def fit_fields(head: str, lobes: int, sample: dict, smooth: int, steps: int, lr:
                 ** 2
                 * masks[k]
             ).mean()
-            for k in range(len(targets) - 1)
+            for k in range(len(targets) - held_out)
         )
         opt.zero_grad()
         loss.backward()

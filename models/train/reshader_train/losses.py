@@ -231,3 +231,29 @@ def multi_target_loss(
         raise ValueError("every target of the batch has weight 0")
     photos = image[:, None].expand(-1, pred.shape[1], -1, -1, -1)
     return criterion(pred[keep], targets[keep], masks[keep], photos[keep])
+
+
+def field_loss(fields: torch.Tensor, teacher: torch.Tensor, lobes: int) -> torch.Tensor:
+    """How far a lobe head's fields (B,C,H,W) are from fitted ones (`train --teacher`).
+
+    Amplitudes and the sliding layer's fraction are compared as they are. A lobe's axis and
+    sharpness matter only as far as its amplitude (a lobe of amplitude 0 may point
+    anywhere), and the layer's depth only as far as its fraction, so those are weighted by
+    the fitted amplitude or fraction. Sharpness is compared in log, over the span of
+    SHARPNESS_RANGE (a mirror's lobe and a wide one differ by four orders)."""
+    from .model import SHARPNESS_RANGE
+
+    span = torch.log(torch.tensor(SHARPNESS_RANGE[1] / SHARPNESS_RANGE[0]))
+    total = fields.new_zeros(())
+    for j in range(lobes):
+        p, t = fields[:, 7 * j : 7 * j + 7], teacher[:, 7 * j : 7 * j + 7]
+        weight = t[:, 4:7].abs().mean(1, keepdim=True)
+        total = total + (p[:, 4:7] - t[:, 4:7]).abs().mean()
+        total = total + (weight * (1.0 - (p[:, 0:3] * t[:, 0:3]).sum(1, keepdim=True))).mean()
+        log_ratio = torch.log(p[:, 3:4].clamp(min=1e-6) / t[:, 3:4].clamp(min=1e-6))
+        total = total + (weight * log_ratio.abs()).mean() / span
+    if fields.shape[1] > 7 * lobes:
+        p, t = fields[:, 7 * lobes :], teacher[:, 7 * lobes :]
+        total = total + (p[:, 0:3] - t[:, 0:3]).abs().mean()
+        total = total + (t[:, 0:3].mean(1, keepdim=True) * (p[:, 3:4] - t[:, 3:4]).abs()).mean()
+    return total

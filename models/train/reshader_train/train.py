@@ -29,12 +29,31 @@ from torch.utils.data import DataLoader, DistributedSampler
 from .data import Augment, DatasetError, ReshadeDataset, list_examples
 from .evaluate import masked_psnr, reshade
 from .features import CHOICES, FeatureNetError
-from .losses import LossWeights, ReshadeLoss, make_loss, multi_target_loss, pixel_loss
+from .losses import (
+    LossWeights,
+    ReshadeLoss,
+    field_loss,
+    make_loss,
+    multi_target_loss,
+    pixel_loss,
+)
 from .model import HEADS, LOBE_DOMAINS, NetConfig, ReshadeNet, count_parameters, net_config
 from .onnx_weights import load_onnx_weights
+from .teacher import TEACHER_JSON
 
 CHECKPOINT = "checkpoint.pt"
-LOG_FIELDS = ("step", "lr", "loss", "pixel", "vgg", "style", "examples", "steps_per_s", "elapsed_s")
+LOG_FIELDS = (
+    "step",
+    "lr",
+    "loss",
+    "pixel",
+    "vgg",
+    "style",
+    "examples",
+    "steps_per_s",
+    "elapsed_s",
+    "teacher",
+)
 VAL_FIELDS = ("step", "examples", "psnr_input", "psnr_ours", "gain_db")
 
 
@@ -71,7 +90,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "lobes-flow (lobes plus the photo's gradient times a predicted shift per radian of view "
         "direction change; training experiments only, not exported) or lobes-slide (lobes plus "
         "a layer of reflected light, a fraction of the photo per pixel, that slides with the "
-        "parallax of its own predicted disparity; not exported yet)",
+        "parallax of its own predicted disparity; exported and evaluated by the runtime)",
     )
     p.add_argument("--lobes", type=int, default=2, help="lobes per pixel of the lobes head")
     p.add_argument(
@@ -108,6 +127,19 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "decoder) serves N cameras, and the loss is the mean over them. An example with more "
         "targets gives N distinct ones at random; one with fewer gives all it has, and the "
         "rest of its N are padding that the loss leaves out (default 1)",
+    )
+    p.add_argument(
+        "--teacher",
+        type=Path,
+        help="a folder of fields fitted per training example (`reshader-train teacher`, same "
+        "--head and --lobes): the lobe head is also told those fields, pixel by pixel, "
+        "instead of finding them through the rendered views alone",
+    )
+    p.add_argument(
+        "--teacher-weight",
+        type=float,
+        default=1.0,
+        help="weight of the fitted-field term against the loss on the views (default 1)",
     )
     p.add_argument("--lr", type=float, default=1e-4)
     p.add_argument("--lr-final", type=float, default=1e-5)
@@ -224,12 +256,27 @@ def atomic_write(path: Path, write) -> None:
 
 
 def append_csv(path: Path, fields: tuple[str, ...], row: dict) -> None:
+    """Appends `row`; a file written with fewer columns (an older version's log, resumed)
+    is first rewritten with all of them, its rows blank in the new ones."""
     new = not path.exists()
+    if not new:
+        with open(path, newline="") as f:
+            reader = csv.DictReader(f)
+            if tuple(reader.fieldnames or ()) != fields:
+                rows = list(reader)
+                atomic_write(path, lambda tmp: _write_csv(tmp, fields, rows))
     with open(path, "a", newline="") as f:
         w = csv.DictWriter(f, fieldnames=fields)
         if new:
             w.writeheader()
-        w.writerow({k: row[k] for k in fields})
+        w.writerow({k: row.get(k, "") for k in fields})
+
+
+def _write_csv(path: Path, fields, rows: list[dict]) -> None:
+    with open(path, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=fields, restval="", extrasaction="ignore")
+        w.writeheader()
+        w.writerows(rows)
 
 
 def truncate_csv(path: Path, step: int) -> None:
@@ -241,13 +288,7 @@ def truncate_csv(path: Path, step: int) -> None:
         fields = reader.fieldnames or []
         rows = [r for r in reader if int(r["step"]) <= step]
 
-    def write(tmp: Path) -> None:
-        with open(tmp, "w", newline="") as f:
-            w = csv.DictWriter(f, fieldnames=fields)
-            w.writeheader()
-            w.writerows(rows)
-
-    atomic_write(path, write)
+    atomic_write(path, lambda tmp: _write_csv(tmp, fields, rows))
 
 
 def load_resume(run_dir: Path, cfg: NetConfig, device: torch.device) -> dict | None:
@@ -322,6 +363,7 @@ def make_loader(
         cache=not args.no_cache,
         reuse=reuse,
         targets=args.targets_per_example,
+        teacher=args.teacher,
     )
     sampler = DistributedSampler(
         dataset, num_replicas=d.world, rank=d.rank, shuffle=True, seed=args.seed, drop_last=True
@@ -465,18 +507,46 @@ def param_groups(net: ReshadeNet, head_lr_scale: float) -> list[dict]:
     ]
 
 
-def train_step(model, criterion: ReshadeLoss, opt, batch: dict, lr: float, d: Dist, step: int):
+def check_teacher(folder: Path, cfg: NetConfig) -> None:
+    """The fitted fields must be the trained head's, lobe for lobe."""
+    path = folder / TEACHER_JSON
+    try:
+        fitted = json.loads(path.read_text())
+        head, lobes = fitted["head"], fitted["lobes"]
+    except (OSError, ValueError, KeyError, TypeError) as err:
+        raise DatasetError(
+            f"{path}: unreadable ({err}); fit it with `reshader-train teacher`"
+        ) from err
+    if (head, lobes) != (cfg.head, cfg.lobes):
+        raise ValueError(
+            f"{path}: fields of --head {head} --lobes {lobes}, but this run trains --head "
+            f"{cfg.head} --lobes {cfg.lobes}"
+        )
+
+
+def train_step(
+    model, criterion: ReshadeLoss, opt, batch: dict, lr: float, d: Dist, step: int, teach=None
+):
+    """One optimiser step. `teach` (lobes, weight): batches carry fitted fields ("teacher"),
+    and the fields' distance from them (`field_loss`) is added at that weight."""
     for group in opt.param_groups:
         group["lr"] = lr * group.get("lr_scale", 1.0)
     b = {k: v.to(d.device, non_blocking=True) for k, v in batch.items()}
-    if "targets" in b:  # (B, N, ...): N cameras per photo, one encoder pass
-        pred = model(b["image"], b["disparity"], b["cameras"], b["rays"])
+    many = "targets" in b  # (B, N, ...): N cameras per photo, one encoder pass
+    camera = b["cameras"] if many else b["camera"]
+    pred = model(b["image"], b["disparity"], camera, b["rays"], fields=teach is not None)
+    if teach is not None:
+        pred, fields = pred
+    if many:
         loss, parts = multi_target_loss(
             criterion, pred, b["targets"], b["masks"], b["weights"], b["image"]
         )
     else:
-        pred = model(b["image"], b["disparity"], b["camera"], b["rays"])
         loss, parts = criterion(pred, b["target"], b["mask"], b["image"])
+    if teach is not None:
+        taught = field_loss(fields, b["teacher"], teach[0])
+        loss = loss + teach[1] * taught
+        parts = {**parts, "loss": float(loss.detach()), "teacher": float(taught.detach())}
     if not torch.isfinite(loss):
         raise FloatingPointError(f"loss is {float(loss)} at step {step}: {parts}")
     opt.zero_grad(set_to_none=True)
@@ -513,6 +583,9 @@ def train(args: argparse.Namespace) -> ReshadeNet:
         lobes=args.lobes,
         domain=args.lobe_domain,
     )
+    teach = (args.lobes, args.teacher_weight) if args.teacher else None
+    if teach is not None:
+        check_teacher(args.teacher, cfg)
     net = ReshadeNet(cfg).to(d.device)
     opt = torch.optim.Adam(param_groups(net, args.head_lr_scale), lr=args.lr)
     step = restore(args.run_dir, net, opt, criterion.ident, d)
@@ -562,7 +635,7 @@ def train(args: argparse.Namespace) -> ReshadeNet:
             if step >= args.steps:
                 break
             lr = lr_at(step, args)
-            parts = train_step(model, criterion, opt, batch, lr, d, step)
+            parts = train_step(model, criterion, opt, batch, lr, d, step, teach)
             step += 1
             log.step(step, parts, lr, len(dataset))
             if d.main and (step % args.checkpoint_every == 0 or step == args.steps):

@@ -310,3 +310,18 @@ def test_the_loss_over_n_targets_is_the_mean_of_the_per_target_losses(data, thre
                     per_target.append(criterion(one, t, m, b["image"][i : i + 1])[0])
             assert len(per_target) == 7
             assert float(loss) == pytest.approx(float(torch.stack(per_target).mean()), rel=1e-5)
+
+
+def test_a_log_from_before_a_new_column_is_rewritten_with_it(tmp_path):
+    from reshader_train.train import LOG_FIELDS, append_csv
+
+    path = tmp_path / "log.csv"
+    old = LOG_FIELDS[:-1]
+    with open(path, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=old)
+        w.writeheader()
+        w.writerow({k: 1 for k in old})
+    append_csv(path, LOG_FIELDS, {k: 2 for k in LOG_FIELDS})
+    first, second = read_csv(path)
+    assert first[LOG_FIELDS[-1]] == "" and first["loss"] == "1"
+    assert second[LOG_FIELDS[-1]] == "2"

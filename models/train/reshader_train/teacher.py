@@ -1,0 +1,158 @@
+"""`reshader-train teacher`: a lobe head's fields fitted to every camera of each training
+example, saved as per-pixel targets for `train --teacher`.
+
+Trained through the rendered views alone, the lobe networks stay near their starting
+fields (the sliding layer a uniform few per cent of the photo): a pixel's fields get a
+gradient only where the camera offsets of its batch happen to move light across it. A fit
+per example (see `field_fit`) finds fields that reproduce all of its cameras; a network
+told those fields learns per pixel which light slides and how far, as a segmentation.
+
+Writes `<out>/<example>.npy` (float16, the head's fields (C, H, W) in LobeField's layout)
+and `<out>/teacher.json` (head, lobes, fit settings). Resumable: examples whose file
+exists are skipped; files appear whole (written under a temporary name, then renamed).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from .data import DatasetError, list_examples, load_example, make_sample
+from .evaluate import CHANGING_BELOW_DB, masked_psnr
+from .field_fit import fit_fields
+from .model import LOBE_HEADS, shade_lobes
+
+TEACHER_JSON = "teacher.json"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--data", type=Path, required=True, help="examples with several targets")
+    p.add_argument("--out", type=Path, required=True, help="folder for the fitted fields")
+    p.add_argument(
+        "--head", default="lobes-slide", choices=LOBE_HEADS, help="(default lobes-slide)"
+    )
+    p.add_argument("--lobes", type=int, default=1, help="lobes per pixel (default 1)")
+    p.add_argument(
+        "--smooth", type=int, default=8, help="fields at 1/SMOOTH of the resolution (default 8)"
+    )
+    p.add_argument("--steps", type=int, default=150, help="Adam steps per fit (default 150)")
+    p.add_argument("--lr", type=float, default=0.05, help="Adam learning rate (default 0.05)")
+    p.add_argument(
+        "--shard",
+        default="0/1",
+        help="I/N: fit every N-th example from the I-th, to run N processes (default 0/1)",
+    )
+    p.add_argument("--threads", type=int, default=1, help="PyTorch threads (default 1)")
+
+
+def parse_shard(text: str) -> tuple[int, int]:
+    try:
+        i, n = (int(v) for v in text.split("/"))
+    except ValueError:
+        raise ValueError(f"--shard {text!r}: expected I/N, e.g. 0/2") from None
+    if not 0 <= i < n:
+        raise ValueError(f"--shard {text!r}: need 0 <= I < N")
+    return i, n
+
+
+def settings(args: argparse.Namespace) -> dict:
+    return {
+        "head": args.head,
+        "lobes": args.lobes,
+        "smooth": args.smooth,
+        "steps": args.steps,
+        "lr": args.lr,
+    }
+
+
+def claim_settings(out: Path, wanted: dict) -> None:
+    """Writes teacher.json, or checks that the one there matches (a folder holds one head's
+    fields: mixing fits would teach the network two layouts)."""
+    path = out / TEACHER_JSON
+    if path.exists():
+        have = json.loads(path.read_text())
+        if have != wanted:
+            raise ValueError(f"{path} was written with {have}, not {wanted}: use another --out")
+        return
+    tmp = out / f".tmp-{TEACHER_JSON}-{os.getpid()}"
+    tmp.write_text(json.dumps(wanted, indent=1))
+    tmp.replace(path)
+
+
+def fitted_gain(head: str, sample: dict, fields: torch.Tensor) -> float | None:
+    """Mean gain of the fit on the example's cameras whose shading changes (an unchanged
+    view's input is its truth to the last bit: there a fit can only lose), None if none."""
+    image, disparity, rays = (sample[k][None] for k in ("image", "disparity", "rays"))
+    gains = []
+    for k in range(len(sample["targets"])):
+        target, mask = sample["targets"][k : k + 1], sample["masks"][k : k + 1]
+        before = masked_psnr(image, target, mask)
+        if before >= CHANGING_BELOW_DB:
+            continue
+        view = shade_lobes(image, fields, disparity, rays, sample["cameras"][k : k + 1], head=head)
+        gains.append(masked_psnr(view.clamp(0, 1), target, mask) - before)
+    return statistics.mean(gains) if gains else None
+
+
+def run(args: argparse.Namespace) -> int:
+    try:
+        shard = parse_shard(args.shard)
+    except ValueError as err:
+        print(f"teacher: {err}", file=sys.stderr)
+        return 2
+    if args.smooth < 1 or args.steps < 1 or args.lobes < 1:
+        print("teacher: --smooth, --steps and --lobes must be at least 1", file=sys.stderr)
+        return 2
+    torch.set_num_threads(args.threads)
+    try:
+        folders = list_examples(args.data)[shard[0] :: shard[1]]
+        args.out.mkdir(parents=True, exist_ok=True)
+        claim_settings(args.out, settings(args))
+    except (DatasetError, ValueError, OSError) as err:
+        print(f"teacher: {err}", file=sys.stderr)
+        return 1
+    todo = [f for f in folders if not (args.out / f"{f.name}.npy").exists()]
+    print(f"teacher: {len(folders) - len(todo)} of {len(folders)} already fitted", file=sys.stderr)
+    started, gains = time.monotonic(), []
+    for i, folder in enumerate(todo):
+        try:
+            ex = load_example(folder)
+        except DatasetError as err:
+            print(f"teacher: {err}", file=sys.stderr)
+            return 1
+        if ex.target_count < 2:
+            print(
+                f"teacher: {folder} has one target; fields need several cameras "
+                "(render with --scenes analytic --targets N)",
+                file=sys.stderr,
+            )
+            return 1
+        sample = make_sample(ex, crop=None, rng=None, aug=None, targets=ex.target_count)
+        fields = fit_fields(
+            args.head, args.lobes, sample, args.smooth, args.steps, args.lr, held_out=0
+        )
+        gain = fitted_gain(args.head, sample, fields)
+        if gain is not None:
+            gains.append(gain)
+        tmp = args.out / f".tmp-{folder.name}-{os.getpid()}.npy"
+        np.save(tmp, fields[0].numpy().astype(np.float16))
+        tmp.replace(args.out / f"{folder.name}.npy")
+        fit = "no view changes" if gain is None else f"{gain:+.2f} dB on its changing views"
+        print(
+            f"[{i + 1}/{len(todo)}] {folder.name}: {fit} ({time.monotonic() - started:.0f} s)",
+            file=sys.stderr,
+        )
+    if gains:
+        print(
+            f"teacher: {len(todo)} examples fitted; on the {len(gains)} with changing views "
+            f"the fields gain {statistics.mean(gains):+.2f} dB"
+        )
+    return 0

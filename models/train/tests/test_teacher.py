@@ -1,0 +1,130 @@
+import csv
+import json
+
+import numpy as np
+import pytest
+import torch
+from test_data import fake_example
+from test_train import TINY
+
+from reshader_train.cli import main
+from reshader_train.data import Augment, FieldTargets, load_field_targets, make_sample
+from reshader_train.losses import field_loss
+from reshader_train.synthetic import write_dataset
+
+
+@pytest.fixture(scope="module")
+def analytic(tmp_path_factory):
+    """Three analytic examples with three targets each (32x32) and their fitted fields."""
+    root = tmp_path_factory.mktemp("teach")
+    data = root / "analytic"
+    argv = ["render", "--scenes", "analytic", "--out", str(data), "--count", "3"]
+    assert main([*argv, "--size", "32x32", "--spp", "1", "--targets", "3", "--seed", "5"]) == 0
+    fields = root / "fields"
+    argv = ["teacher", "--data", str(data), "--out", str(fields), "--steps", "20", "--smooth", "4"]
+    assert main(argv) == 0
+    return data, fields
+
+
+def test_teacher_fits_every_example_once(analytic, capsys):
+    data, fields = analytic
+    names = sorted(p.name for p in data.iterdir() if (p / "meta.json").exists())
+    assert sorted(p.stem for p in fields.glob("*.npy")) == names
+    a = np.load(fields / f"{names[0]}.npy")
+    assert a.dtype == np.float16 and a.shape == (7 + 4, 32, 32)  # one lobe and the layer
+    settings = json.loads((fields / "teacher.json").read_text())
+    assert (settings["head"], settings["lobes"]) == ("lobes-slide", 1)
+    capsys.readouterr()
+    argv = ["teacher", "--data", str(data), "--out", str(fields), "--steps", "20", "--smooth", "4"]
+    assert main(argv) == 0  # resumed: nothing left to fit
+    assert "3 of 3 already fitted" in capsys.readouterr().err
+    assert main([*argv[:-2], "--smooth", "2"]) == 1  # another fit into the same folder
+    assert "use another --out" in capsys.readouterr().err
+    assert not list(fields.glob(".tmp-*"))
+
+
+def test_teacher_needs_several_cameras(tmp_path, capsys):
+    one = write_dataset(tmp_path / "one", 2, 32, 32, seed=0)
+    assert main(["teacher", "--data", str(one), "--out", str(tmp_path / "f")]) == 1
+    assert "has one target" in capsys.readouterr().err
+    assert (
+        main(["teacher", "--data", str(one), "--out", str(tmp_path / "f"), "--shard", "2/2"]) == 2
+    )
+
+
+def axis_teacher(ex, lobes=2):
+    """Fields whose every lobe axis is the pixel's own view direction (minus its ray), and
+    whose scalars are a ramp, so that each symmetry is visible in them."""
+    rays = make_sample(ex, None, None, None)["rays"].numpy().transpose(1, 2, 0)
+    w0 = -rays / np.linalg.norm(rays, axis=-1, keepdims=True)
+    h, w = rays.shape[:2]
+    ramp = np.arange(h * w, dtype=np.float32).reshape(h, w, 1) / (h * w)
+    per_lobe = [np.concatenate([w0, ramp, ramp, ramp, ramp], -1) for _ in range(lobes)]
+    return FieldTargets(np.concatenate([*per_lobe, ramp, ramp, ramp, ramp], -1), lobes)
+
+
+@pytest.mark.parametrize("dihedral", [False, True])
+def test_fitted_axes_turn_with_the_rays(dihedral):
+    """Each flip and transpose moves the fitted fields with the image and turns their axes
+    as it turns the rays: an axis that was the view direction stays the view direction."""
+    ex = fake_example()
+    ex.teacher = axis_teacher(ex)
+    aug = Augment(disparity_scale=(1.0, 1.0), still=0.0, dihedral=dihedral)
+    seen = set()
+    for seed in range(16):
+        s = make_sample(ex, None, np.random.default_rng(seed), aug)
+        rays = s["rays"]
+        w0 = -rays / rays.norm(dim=0, keepdim=True)
+        for j in range(2):
+            assert torch.allclose(s["teacher"][7 * j : 7 * j + 3], w0, atol=1e-3), f"seed {seed}"
+        seen.add(tuple(s["teacher"][3, 0, :2].tolist()))
+    assert len(seen) > 1  # the ramp was mirrored by some draws
+
+
+def test_field_targets_are_checked_against_the_example(analytic, tmp_path):
+    data, fields = analytic
+    name = next(fields.glob("*.npy")).stem
+    t = load_field_targets(fields, name, (32, 32))
+    assert t.fields.shape == (32, 32, 11) and t.lobes == 1
+    with pytest.raises(Exception, match="expected \\(C, 16, 16\\)"):
+        load_field_targets(fields, name, (16, 16))
+    with pytest.raises(Exception, match="run `teacher`"):
+        load_field_targets(fields, "no-such-example", (32, 32))
+
+
+def test_field_loss_is_zero_at_the_teacher_and_weighs_axes_by_amplitude():
+    torch.manual_seed(0)
+    t = torch.rand(2, 11, 8, 8)
+    t[:, 0:3] = t[:, 0:3] / t[:, 0:3].norm(dim=1, keepdim=True)
+    assert float(field_loss(t, t, 1)) == pytest.approx(0.0, abs=1e-6)
+    turned = t.clone()
+    turned[:, 0:3] = -t[:, 0:3]
+    assert float(field_loss(turned, t, 1)) > 0.1
+    faint = t.clone()
+    faint[:, 4:7] = 0.0  # no amplitude: the axis cannot matter
+    turned[:, 4:7] = 0.0
+    assert float(field_loss(turned, faint, 1)) == pytest.approx(0.0, abs=1e-6)
+
+
+def test_train_with_a_teacher_logs_its_term(analytic, tmp_path):
+    data, fields = analytic
+    run = tmp_path / "run"
+    argv = ["train", "--data", str(data), "--run-dir", str(run), "--size", TINY, "--steps", "2",
+            "--batch-size", "2", "--crop", "32", "--workers", "0", "--threads", "1",
+            "--log-every", "1", "--no-progress", "--head", "lobes-slide", "--lobes", "1",
+            "--loss-weights", "1,0,0", "--targets-per-example", "2", "--dihedral",
+            "--teacher", str(fields)]  # fmt: skip
+    assert main(argv) == 0
+    with open(run / "log.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
+    assert len(rows) == 2 and all(float(r["teacher"]) > 0 for r in rows)
+    assert all(float(r["loss"]) > float(r["pixel"]) for r in rows)
+
+
+def test_train_refuses_another_heads_teacher(analytic, tmp_path, capsys):
+    data, fields = analytic
+    argv = ["train", "--data", str(data), "--run-dir", str(tmp_path / "r"), "--size", TINY,
+            "--steps", "1", "--batch-size", "2", "--crop", "32", "--workers", "0",
+            "--head", "lobes", "--lobes", "2", "--teacher", str(fields)]  # fmt: skip
+    assert main(argv) == 2
+    assert "fields of --head lobes-slide --lobes 1" in capsys.readouterr().err

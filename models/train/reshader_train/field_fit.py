@@ -42,15 +42,29 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--steps", type=int, default=150, help="Adam steps per fit (default 150)")
     p.add_argument("--lr", type=float, default=0.05, help="Adam learning rate (default 0.05)")
+    p.add_argument(
+        "--sparsity",
+        type=float,
+        default=0.0,
+        help="add this times the mean lobe amplitude and layer fraction to each fit (default 0)",
+    )
     p.add_argument("--threads", type=int, default=1, help="PyTorch threads (default 1)")
     p.add_argument("--json", type=Path, help="write the summary and per-example rows as JSON")
 
 
 def fit_fields(
-    head: str, lobes: int, sample: dict, smooth: int, steps: int, lr: float, held_out: int = 1
+    head: str,
+    lobes: int,
+    sample: dict,
+    smooth: int,
+    steps: int,
+    lr: float,
+    held_out: int = 1,
+    sparsity: float = 0.0,
 ):
     """The head's fields (B, C, H, W), fitted to every target of `sample` but the last
-    `held_out`."""
+    `held_out`, plus `sparsity` times the mean lobe amplitude and layer fraction (with a
+    few cameras many fields fit; the sparse ones put the light where it shines)."""
     image, disparity, rays = (sample[k][None] for k in ("image", "disparity", "rays"))
     targets, masks, cameras = sample["targets"], sample["masks"], sample["cameras"]
     h, w = image.shape[2:]
@@ -72,11 +86,22 @@ def fit_fields(
             ).mean()
             for k in range(len(targets) - held_out)
         )
+        if sparsity:
+            loss = loss + sparsity * sparse_penalty(f, lobes)
         opt.zero_grad()
         loss.backward()
         opt.step()
     with torch.no_grad():
         return fields()
+
+
+def sparse_penalty(fields: torch.Tensor, lobes: int) -> torch.Tensor:
+    """Mean |amplitude| of the lobes plus the mean sliding fraction (if the head has one)."""
+    amps = torch.cat([fields[:, 7 * j + 4 : 7 * j + 7] for j in range(lobes)], 1)
+    penalty = amps.abs().mean()
+    if fields.shape[1] > 7 * lobes:
+        penalty = penalty + fields[:, 7 * lobes : 7 * lobes + 3].mean()
+    return penalty
 
 
 def score(head: str, sample: dict, fields: torch.Tensor) -> tuple[float, float, float]:
@@ -139,7 +164,9 @@ def run(args: argparse.Namespace) -> int:
     for i, ex in enumerate(examples):
         sample = make_sample(ex, crop=None, rng=None, aug=None, targets=ex.target_count)
         for head in heads:
-            fields = fit_fields(head, args.lobes, sample, args.smooth, args.steps, args.lr)
+            fields = fit_fields(
+                head, args.lobes, sample, args.smooth, args.steps, args.lr, sparsity=args.sparsity
+            )
             inp, ours, fitted = score(head, sample, fields)
             rows.append(
                 {

@@ -128,3 +128,17 @@ def test_train_refuses_another_heads_teacher(analytic, tmp_path, capsys):
             "--head", "lobes", "--lobes", "2", "--teacher", str(fields)]  # fmt: skip
     assert main(argv) == 2
     assert "fields of --head lobes-slide --lobes 1" in capsys.readouterr().err
+
+
+def test_a_sparse_fit_puts_less_light_in_the_fields(analytic):
+    from reshader_train.data import list_examples, load_example
+    from reshader_train.field_fit import fit_fields, sparse_penalty
+
+    data, _ = analytic
+    ex = load_example(list_examples(data)[0])
+    sample = make_sample(ex, None, None, None, targets=ex.target_count)
+    penalties = [
+        float(sparse_penalty(fit_fields("lobes-slide", 1, sample, 4, 30, 0.05, 0, w), 1))
+        for w in (0.0, 1.0)
+    ]
+    assert penalties[1] < 0.5 * penalties[0]

@@ -36,20 +36,31 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default="lobes,lobes-slide",
         help=f"comma-separated heads to fit (default lobes,lobes-slide; any of {LOBE_HEADS})",
     )
-    p.add_argument("--lobes", type=int, default=2, help="lobes per pixel (default 2)")
+    add_fit_arguments(p, lobes=2, smooth=4, sparsity=0.0)
+    p.add_argument("--json", type=Path, help="write the summary and per-example rows as JSON")
+
+
+def add_fit_arguments(
+    p: argparse.ArgumentParser, lobes: int, smooth: int, sparsity: float, why: str = ""
+) -> None:
+    """The fit's options, shared with `teacher` (which has other defaults)."""
+    p.add_argument("--lobes", type=int, default=lobes, help=f"lobes per pixel (default {lobes})")
     p.add_argument(
-        "--smooth", type=int, default=4, help="fields at 1/SMOOTH of the resolution (default 4)"
+        "--smooth",
+        type=int,
+        default=smooth,
+        help=f"fields at 1/SMOOTH of the resolution (default {smooth})",
     )
     p.add_argument("--steps", type=int, default=150, help="Adam steps per fit (default 150)")
     p.add_argument("--lr", type=float, default=0.05, help="Adam learning rate (default 0.05)")
     p.add_argument(
         "--sparsity",
         type=float,
-        default=0.0,
-        help="add this times the mean lobe amplitude and layer fraction to each fit (default 0)",
+        default=sparsity,
+        help=f"add this times the mean lobe amplitude and layer fraction to each fit{why} "
+        f"(default {sparsity:g})",
     )
     p.add_argument("--threads", type=int, default=1, help="PyTorch threads (default 1)")
-    p.add_argument("--json", type=Path, help="write the summary and per-example rows as JSON")
 
 
 def fit_fields(

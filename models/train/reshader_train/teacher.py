@@ -25,10 +25,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from .data import DatasetError, list_examples, load_example, make_sample
+from .data import TEACHER_HEADS, DatasetError, list_examples, load_example, make_sample
 from .evaluate import CHANGING_BELOW_DB, masked_psnr
-from .field_fit import fit_fields
-from .model import LOBE_HEADS, shade_lobes
+from .field_fit import add_fit_arguments, fit_fields
+from .model import shade_lobes
 
 TEACHER_JSON = "teacher.json"
 # Measured on 6 training examples (one camera held out): at 0.01 the fraction sits on the
@@ -41,28 +41,18 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--data", type=Path, required=True, help="examples with several targets")
     p.add_argument("--out", type=Path, required=True, help="folder for the fitted fields")
     p.add_argument(
-        "--head", default="lobes-slide", choices=LOBE_HEADS, help="(default lobes-slide)"
+        "--head", default="lobes-slide", choices=TEACHER_HEADS, help="(default lobes-slide)"
     )
-    p.add_argument("--lobes", type=int, default=1, help="lobes per pixel (default 1)")
-    p.add_argument(
-        "--smooth", type=int, default=8, help="fields at 1/SMOOTH of the resolution (default 8)"
+    why = (
+        ": with four cameras many fields fit, and unconstrained fits are blotches of either "
+        "sign that no network can predict from the photo"
     )
-    p.add_argument("--steps", type=int, default=150, help="Adam steps per fit (default 150)")
-    p.add_argument("--lr", type=float, default=0.05, help="Adam learning rate (default 0.05)")
-    p.add_argument(
-        "--sparsity",
-        type=float,
-        default=SPARSITY,
-        help="add this times the mean lobe amplitude and layer fraction to each fit: with "
-        "four cameras many fields fit, and unconstrained fits are blotches of either sign "
-        f"that no network can predict from the photo (default {SPARSITY})",
-    )
+    add_fit_arguments(p, lobes=1, smooth=8, sparsity=SPARSITY, why=why)
     p.add_argument(
         "--shard",
         default="0/1",
         help="I/N: fit every N-th example from the I-th, to run N processes (default 0/1)",
     )
-    p.add_argument("--threads", type=int, default=1, help="PyTorch threads (default 1)")
 
 
 def parse_shard(text: str) -> tuple[int, int]:

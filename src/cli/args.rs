@@ -221,7 +221,8 @@ pub struct ReshadeArgs {
     #[arg(long)]
     pub reshade_threads: Option<usize>,
     /// Reshading head: residual (the paper's network, run per view) or lobes (a network
-    /// run once per photo and a closed form per view). Default: a --model manifest's own
+    /// run once per photo and a closed form per view; also the lobes-slide models, whose
+    /// closed form adds a sliding reflection layer). Default: a --model manifest's own
     /// head; for a directory, residual when it holds residual-head models, else lobes.
     #[arg(long, value_parser = keyword::<Head>())]
     pub head: Option<Head>,

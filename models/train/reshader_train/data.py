@@ -131,16 +131,24 @@ class FieldTargets:
         return FieldTargets(f, self.lobes)
 
 
-def load_field_targets(folder: Path, name: str, shape: tuple[int, int]) -> FieldTargets:
-    """`<folder>/<name>.npy` (C, H, W) with the head and lobe count of `<folder>/teacher.json`."""
-    path = folder / f"{name}.npy"
+def teacher_settings(folder: Path) -> dict:
+    """`<folder>/teacher.json`: the head and lobe count (and fit settings) of its fields."""
+    path = folder / TEACHER_JSON
     try:
-        settings = json.loads((folder / "teacher.json").read_text())
-        lobes, head = int(settings["lobes"]), str(settings["head"])
+        settings = json.loads(path.read_text())
+        head, lobes = str(settings["head"]), int(settings["lobes"])
     except (OSError, ValueError, KeyError, TypeError) as err:
-        raise DatasetError(f"{folder / 'teacher.json'}: unreadable ({err})") from err
+        raise DatasetError(
+            f"{path}: unreadable ({err}); fit it with `reshader-train teacher`"
+        ) from err
     if head not in TEACHER_HEADS:
-        raise DatasetError(f"{folder / 'teacher.json'}: head {head!r}, expected {TEACHER_HEADS}")
+        raise DatasetError(f"{path}: head {head!r}, expected {TEACHER_HEADS}")
+    return {**settings, "head": head, "lobes": lobes}
+
+
+def load_field_targets(folder: Path, name: str, shape: tuple[int, int], lobes: int) -> FieldTargets:
+    """`<folder>/<name>.npy` (C, H, W), fields of `lobes` lobes (see `teacher_settings`)."""
+    path = folder / f"{name}.npy"
     try:
         fields = np.load(path)
     except (OSError, ValueError) as err:
@@ -152,6 +160,7 @@ def load_field_targets(folder: Path, name: str, shape: tuple[int, int]) -> Field
 
 # Heads whose fields are lobes and per-pixel scalars, so that a flip turns only the axes.
 TEACHER_HEADS = ("lobes", "lobes-slide")
+TEACHER_JSON = "teacher.json"
 
 
 @dataclass
@@ -464,6 +473,7 @@ class ReshadeDataset(Dataset):
         self.cache = cache
         self.targets = targets
         self.teacher = teacher
+        self._teacher_lobes = teacher_settings(teacher)["lobes"] if teacher is not None else 0
         self._examples: dict[Path, Example] = reuse._examples if reuse is not None else {}
         self._rng: np.random.Generator | None = None
         self._rng_pid = -1
@@ -477,7 +487,9 @@ class ReshadeDataset(Dataset):
         if ex is None:
             ex = load_example(folder)
             if self.teacher is not None:
-                ex.teacher = load_field_targets(self.teacher, ex.name, ex.mask.shape)
+                ex.teacher = load_field_targets(
+                    self.teacher, ex.name, ex.mask.shape, self._teacher_lobes
+                )
             if self.cache:
                 self._examples[folder] = ex
         return ex

@@ -115,9 +115,8 @@ def sparse_penalty(fields: torch.Tensor, lobes: int) -> torch.Tensor:
     return penalty
 
 
-def score(head: str, sample: dict, fields: torch.Tensor) -> tuple[float, float, float]:
-    """Input PSNR and the fit's on the held-out (last) camera, and the fit's mean gain on
-    the cameras it was fitted to."""
+def target_psnrs(head: str, sample: dict, fields: torch.Tensor) -> list[tuple[float, float]]:
+    """(input PSNR, the fields' view's PSNR) at each target camera of `sample`."""
     image, disparity, rays = (sample[k][None] for k in ("image", "disparity", "rays"))
     targets, masks, cameras = sample["targets"], sample["masks"], sample["cameras"]
     psnr = []
@@ -129,6 +128,13 @@ def score(head: str, sample: dict, fields: torch.Tensor) -> tuple[float, float, 
                 masked_psnr(view.clamp(0, 1), targets[k : k + 1], masks[k : k + 1]),
             )
         )
+    return psnr
+
+
+def score(head: str, sample: dict, fields: torch.Tensor) -> tuple[float, float, float]:
+    """Input PSNR and the fit's on the held-out (last) camera, and the fit's mean gain on
+    the cameras it was fitted to."""
+    psnr = target_psnrs(head, sample, fields)
     fitted = statistics.mean(ours - inp for inp, ours in psnr[:-1])
     return psnr[-1][0], psnr[-1][1], fitted
 

@@ -25,12 +25,17 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from .data import TEACHER_HEADS, DatasetError, list_examples, load_example, make_sample
-from .evaluate import CHANGING_BELOW_DB, masked_psnr
-from .field_fit import add_fit_arguments, fit_fields
-from .model import shade_lobes
+from .data import (
+    TEACHER_HEADS,
+    TEACHER_JSON,
+    DatasetError,
+    list_examples,
+    load_example,
+    make_sample,
+)
+from .evaluate import CHANGING_BELOW_DB
+from .field_fit import add_fit_arguments, fit_fields, target_psnrs
 
-TEACHER_JSON = "teacher.json"
 # Measured on 6 training examples (one camera held out): at 0.01 the fraction sits on the
 # highlights and the amplitudes on a few blobs, the held-out camera gains more than with
 # none, and the fitted cameras nearly as much.
@@ -93,15 +98,8 @@ def claim_settings(out: Path, wanted: dict) -> None:
 def fitted_gain(head: str, sample: dict, fields: torch.Tensor) -> float | None:
     """Mean gain of the fit on the example's cameras whose shading changes (an unchanged
     view's input is its truth to the last bit: there a fit can only lose), None if none."""
-    image, disparity, rays = (sample[k][None] for k in ("image", "disparity", "rays"))
-    gains = []
-    for k in range(len(sample["targets"])):
-        target, mask = sample["targets"][k : k + 1], sample["masks"][k : k + 1]
-        before = masked_psnr(image, target, mask)
-        if before >= CHANGING_BELOW_DB:
-            continue
-        view = shade_lobes(image, fields, disparity, rays, sample["cameras"][k : k + 1], head=head)
-        gains.append(masked_psnr(view.clamp(0, 1), target, mask) - before)
+    psnr = target_psnrs(head, sample, fields)
+    gains = [ours - before for before, ours in psnr if before < CHANGING_BELOW_DB]
     return statistics.mean(gains) if gains else None
 
 

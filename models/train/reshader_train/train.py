@@ -26,7 +26,7 @@ import torch.distributed as dist
 from torch.nn.parallel import DistributedDataParallel
 from torch.utils.data import DataLoader, DistributedSampler
 
-from .data import Augment, DatasetError, ReshadeDataset, list_examples
+from .data import Augment, DatasetError, ReshadeDataset, list_examples, teacher_settings
 from .evaluate import masked_psnr, reshade
 from .features import CHOICES, FeatureNetError
 from .losses import (
@@ -39,7 +39,6 @@ from .losses import (
 )
 from .model import HEADS, LOBE_DOMAINS, NetConfig, ReshadeNet, count_parameters, net_config
 from .onnx_weights import load_onnx_weights
-from .teacher import TEACHER_JSON
 
 CHECKPOINT = "checkpoint.pt"
 LOG_FIELDS = (
@@ -256,15 +255,8 @@ def atomic_write(path: Path, write) -> None:
 
 
 def append_csv(path: Path, fields: tuple[str, ...], row: dict) -> None:
-    """Appends `row`; a file written with fewer columns (an older version's log, resumed)
-    is first rewritten with all of them, its rows blank in the new ones."""
+    """Appends `row` (columns it lacks left blank) to a file with `fields` as its header."""
     new = not path.exists()
-    if not new:
-        with open(path, newline="") as f:
-            reader = csv.DictReader(f)
-            if tuple(reader.fieldnames or ()) != fields:
-                rows = list(reader)
-                atomic_write(path, lambda tmp: _write_csv(tmp, fields, rows))
     with open(path, "a", newline="") as f:
         w = csv.DictWriter(f, fieldnames=fields)
         if new:
@@ -279,14 +271,14 @@ def _write_csv(path: Path, fields, rows: list[dict]) -> None:
         w.writerows(rows)
 
 
-def truncate_csv(path: Path, step: int) -> None:
-    """Drop rows logged after `step`: a resumed run logs those steps again."""
+def truncate_csv(path: Path, step: int, fields: tuple[str, ...]) -> None:
+    """Drop rows logged after `step`: a resumed run logs those steps again. The file is
+    rewritten with `fields` as its header, so that a log an older version wrote with fewer
+    columns takes this version's rows (its own rows blank in the new columns)."""
     if not path.exists():
         return
     with open(path, newline="") as f:
-        reader = csv.DictReader(f)
-        fields = reader.fieldnames or []
-        rows = [r for r in reader if int(r["step"]) <= step]
+        rows = [r for r in csv.DictReader(f) if int(r["step"]) <= step]
 
     atomic_write(path, lambda tmp: _write_csv(tmp, fields, rows))
 
@@ -509,17 +501,11 @@ def param_groups(net: ReshadeNet, head_lr_scale: float) -> list[dict]:
 
 def check_teacher(folder: Path, cfg: NetConfig) -> None:
     """The fitted fields must be the trained head's, lobe for lobe."""
-    path = folder / TEACHER_JSON
-    try:
-        fitted = json.loads(path.read_text())
-        head, lobes = fitted["head"], fitted["lobes"]
-    except (OSError, ValueError, KeyError, TypeError) as err:
-        raise DatasetError(
-            f"{path}: unreadable ({err}); fit it with `reshader-train teacher`"
-        ) from err
+    fitted = teacher_settings(folder)
+    head, lobes = fitted["head"], fitted["lobes"]
     if (head, lobes) != (cfg.head, cfg.lobes):
         raise ValueError(
-            f"{path}: fields of --head {head} --lobes {lobes}, but this run trains --head "
+            f"{folder}: fields of --head {head} --lobes {lobes}, but this run trains --head "
             f"{cfg.head} --lobes {cfg.lobes}"
         )
 
@@ -611,8 +597,8 @@ def train(args: argparse.Namespace) -> ReshadeNet:
         "train_examples": len(dataset),
     }
     if d.main:
-        for name in ("log.csv", "val.csv"):
-            truncate_csv(args.run_dir / name, step)
+        for name, fields in (("log.csv", LOG_FIELDS), ("val.csv", VAL_FIELDS)):
+            truncate_csv(args.run_dir / name, step, fields)
         write_config(args, d, net, meta, step)
         print(
             f"training {args.size} ({count_parameters(net) / 1e6:.2f} M parameters) on "

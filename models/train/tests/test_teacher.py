@@ -8,7 +8,13 @@ from test_data import fake_example
 from test_train import TINY
 
 from reshader_train.cli import main
-from reshader_train.data import Augment, FieldTargets, load_field_targets, make_sample
+from reshader_train.data import (
+    Augment,
+    FieldTargets,
+    load_field_targets,
+    make_sample,
+    teacher_settings,
+)
 from reshader_train.losses import field_loss
 from reshader_train.synthetic import write_dataset
 
@@ -84,12 +90,15 @@ def test_fitted_axes_turn_with_the_rays(dihedral):
 def test_field_targets_are_checked_against_the_example(analytic, tmp_path):
     data, fields = analytic
     name = next(fields.glob("*.npy")).stem
-    t = load_field_targets(fields, name, (32, 32))
+    assert teacher_settings(fields)["lobes"] == 1
+    t = load_field_targets(fields, name, (32, 32), 1)
     assert t.fields.shape == (32, 32, 11) and t.lobes == 1
     with pytest.raises(Exception, match="expected \\(C, 16, 16\\)"):
-        load_field_targets(fields, name, (16, 16))
+        load_field_targets(fields, name, (16, 16), 1)
     with pytest.raises(Exception, match="run `teacher`"):
-        load_field_targets(fields, "no-such-example", (32, 32))
+        load_field_targets(fields, "no-such-example", (32, 32), 1)
+    with pytest.raises(Exception, match="fit it with `reshader-train teacher`"):
+        teacher_settings(tmp_path)
 
 
 def test_field_loss_is_zero_at_the_teacher_and_weighs_axes_by_amplitude():

@@ -313,7 +313,7 @@ def test_the_loss_over_n_targets_is_the_mean_of_the_per_target_losses(data, thre
 
 
 def test_a_log_from_before_a_new_column_is_rewritten_with_it(tmp_path):
-    from reshader_train.train import LOG_FIELDS, append_csv
+    from reshader_train.train import LOG_FIELDS, append_csv, truncate_csv
 
     path = tmp_path / "log.csv"
     old = LOG_FIELDS[:-1]
@@ -321,6 +321,7 @@ def test_a_log_from_before_a_new_column_is_rewritten_with_it(tmp_path):
         w = csv.DictWriter(f, fieldnames=old)
         w.writeheader()
         w.writerow({k: 1 for k in old})
+    truncate_csv(path, 1, LOG_FIELDS)  # what a resumed run does first
     append_csv(path, LOG_FIELDS, {k: 2 for k in LOG_FIELDS})
     first, second = read_csv(path)
     assert first[LOG_FIELDS[-1]] == "" and first["loss"] == "1"

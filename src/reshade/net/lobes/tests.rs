@@ -10,6 +10,14 @@ fn spec(lobes: usize, deadzone: f32) -> LobeSpec {
     }
 }
 
+/// One lobe and the sliding layer, no dead zone.
+fn slide_spec() -> LobeSpec {
+    LobeSpec {
+        slide: true,
+        ..spec(1, 0.0)
+    }
+}
+
 /// One pixel straight ahead at depth 1 (d = 0.25), one lobe around the input camera's
 /// direction (0, 0, −1), sharpness 50, amplitude (0.4, 0.2, −0.2); camera (0.3, 0, 0):
 /// w = normalize(0.3, 0, −1), so μ·w = 1/√1.09 and the change is
@@ -205,12 +213,7 @@ fn slide_row(rho: f32) -> LobeField {
         rays[x] = (x as f32 - 4.0) / 10.0;
         rays[plane + x] = 0.0;
     }
-    let spec = LobeSpec {
-        lobes: 1,
-        deadzone: 0.0,
-        slide: true,
-    };
-    LobeField::new(spec, w, 1, &lobes, &image, &[0.25; 9], &rays).unwrap()
+    LobeField::new(slide_spec(), w, 1, &lobes, &image, &[0.25; 9], &rays).unwrap()
 }
 
 #[test]
@@ -243,11 +246,7 @@ fn a_layer_on_the_surface_never_moves() {
 
 #[test]
 fn a_slide_field_needs_its_four_extra_channels() {
-    let spec = LobeSpec {
-        lobes: 1,
-        deadzone: 0.0,
-        slide: true,
-    };
+    let spec = slide_spec();
     assert_eq!(spec.channels(), 11);
     let msg = LobeField::new(spec, 1, 1, &[0.0; 7], &[0.0; 3], &[0.0], &[0.0; 3])
         .unwrap_err()

@@ -140,6 +140,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default=1.0,
         help="weight of the fitted-field term against the loss on the views (default 1)",
     )
+    p.add_argument(
+        "--teacher-decay",
+        type=int,
+        default=0,
+        metavar="STEPS",
+        help="the fitted-field weight falls linearly from --teacher-weight to 0 over the "
+        "first STEPS steps, so that the fields guide the start and the views decide the "
+        "rest (default 0: the weight stays)",
+    )
     p.add_argument("--lr", type=float, default=1e-4)
     p.add_argument("--lr-final", type=float, default=1e-5)
     p.add_argument(
@@ -215,6 +224,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def lr_at(step: int, args: argparse.Namespace) -> float:
     return args.lr if step < int(args.lr_drop * args.steps) else args.lr_final
+
+
+def teacher_weight_at(step: int, args: argparse.Namespace) -> float:
+    if args.teacher_decay <= 0:
+        return args.teacher_weight
+    return args.teacher_weight * max(0.0, 1.0 - step / args.teacher_decay)
 
 
 @dataclass
@@ -569,8 +584,7 @@ def train(args: argparse.Namespace) -> ReshadeNet:
         lobes=args.lobes,
         domain=args.lobe_domain,
     )
-    teach = (args.lobes, args.teacher_weight) if args.teacher else None
-    if teach is not None:
+    if args.teacher:
         check_teacher(args.teacher, cfg)
     net = ReshadeNet(cfg).to(d.device)
     opt = torch.optim.Adam(param_groups(net, args.head_lr_scale), lr=args.lr)
@@ -621,6 +635,7 @@ def train(args: argparse.Namespace) -> ReshadeNet:
             if step >= args.steps:
                 break
             lr = lr_at(step, args)
+            teach = (args.lobes, teacher_weight_at(step, args)) if args.teacher else None
             parts = train_step(model, criterion, opt, batch, lr, d, step, teach)
             step += 1
             log.step(step, parts, lr, len(dataset))

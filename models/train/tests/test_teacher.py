@@ -130,6 +130,24 @@ def test_train_with_a_teacher_logs_its_term(analytic, tmp_path):
     assert all(float(r["loss"]) > float(r["pixel"]) for r in rows)
 
 
+def test_the_teacher_weight_falls_to_zero_over_its_decay(analytic, tmp_path):
+    data, fields = analytic
+    run = tmp_path / "run"
+    argv = ["train", "--data", str(data), "--run-dir", str(run), "--size", TINY, "--steps", "3",
+            "--batch-size", "2", "--crop", "32", "--workers", "0", "--threads", "1",
+            "--log-every", "1", "--no-progress", "--head", "lobes-slide", "--lobes", "1",
+            "--loss-weights", "1,0,0", "--teacher", str(fields), "--teacher-weight", "5",
+            "--teacher-decay", "2"]  # fmt: skip
+    assert main(argv) == 0
+    with open(run / "log.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
+    first, last = rows[0], rows[-1]
+    taught = float(first["loss"]) - float(first["pixel"])
+    assert taught == pytest.approx(5 * float(first["teacher"]), rel=1e-4)
+    assert float(last["teacher"]) > 0
+    assert float(last["loss"]) == pytest.approx(float(last["pixel"]), rel=1e-6)
+
+
 def test_train_refuses_another_heads_teacher(analytic, tmp_path, capsys):
     data, fields = analytic
     argv = ["train", "--data", str(data), "--run-dir", str(tmp_path / "r"), "--size", TINY,

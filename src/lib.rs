@@ -16,9 +16,10 @@
 //! stages in order and writes the outputs and run.json; [`device`] and [`eval`] are built
 //! on the pipeline. Imports go one way: io → engine → stages → pipeline → device and eval.
 
-// Formats and engines, below every stage.
+// Formats, engines and threads, below every stage.
 pub mod io;
 pub mod engine;
+pub mod parallel;
 
 // The stages, in data-flow order.
 pub mod depth;

@@ -50,7 +50,7 @@ pub struct BenchArgs {
     /// Timed runs per photo and board (after one untimed warm-up run).
     #[arg(long, default_value_t = 3)]
     pub runs: usize,
-    /// Threads for inference (unless --reshade-threads) and weaving.
+    /// Threads for inference (unless --reshade-threads), relocation and weaving.
     #[arg(long, default_value_t = 2)]
     pub threads: usize,
     /// Write the report: .md for Markdown, .json for the comparable form (repeatable).

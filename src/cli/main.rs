@@ -115,6 +115,7 @@ enum Command {
 static ALLOCATOR: reshader::io::limits::Allocator = reshader::io::limits::Allocator;
 
 fn main() -> ExitCode {
+    reshader::io::limits::share_one_heap();
     let cli = Cli::parse();
     let level = match cli.verbose {
         0 => log::LevelFilter::Warn,

@@ -49,7 +49,7 @@ impl RefineOptions {
 }
 
 /// Refines `disparity` (`width`×`height`, row-major) with the interleaved RGB photo `rgb`
-/// (values in [0, 1]) of the same size.
+/// (values in [0, 1]) of the same size, in bands of rows on every core.
 pub fn refine_disparity(
     rgb: &[f32],
     disparity: &[f32],
@@ -63,53 +63,87 @@ pub fn refine_disparity(
         width * height,
         "disparity does not match size"
     );
-    let r = opts.radius.max(1) as isize;
-    let stride = (r as usize).div_ceil(TAPS).max(1) as isize;
-    let inv_s2 = 1.0 / (opts.sigma_color * opts.sigma_color).max(1e-12);
-    let mut out = Vec::with_capacity(width * height);
-    let mut taps: Vec<(f32, f32)> = Vec::with_capacity((2 * TAPS + 1).pow(2));
-    for y in 0..height as isize {
-        for x in 0..width as isize {
-            let i = (y as usize * width + x as usize) * 3;
-            let me = [rgb[i], rgb[i + 1], rgb[i + 2]];
-            taps.clear();
-            let mut dy = -r;
-            while dy <= r {
-                let yy = y + dy;
-                if (0..height as isize).contains(&yy) {
-                    let mut dx = -r;
-                    while dx <= r {
-                        let xx = x + dx;
-                        if (0..width as isize).contains(&xx) {
-                            let j = yy as usize * width + xx as usize;
-                            let c = &rgb[3 * j..3 * j + 3];
-                            let d2 = (c[0] - me[0]).powi(2)
-                                + (c[1] - me[1]).powi(2)
-                                + (c[2] - me[2]).powi(2);
-                            taps.push((disparity[j], 1.0 / (1.0 + d2 * inv_s2)));
-                        }
-                        dx += stride;
-                    }
-                }
-                dy += stride;
+    let mut out = vec![0.0; width * height];
+    crate::parallel::bands(
+        crate::parallel::cores(),
+        height,
+        width,
+        &mut out,
+        |y0, band| {
+            for (k, row) in band.chunks_exact_mut(width).enumerate() {
+                refine_row(rgb, disparity, (width, height), y0 + k, opts, row);
             }
-            out.push(weighted_median(&mut taps));
-        }
-    }
+        },
+    );
     out
 }
 
+/// Row `y` of [`refine_disparity`] into `out`.
+fn refine_row(
+    rgb: &[f32],
+    disparity: &[f32],
+    (width, height): (usize, usize),
+    y: usize,
+    opts: RefineOptions,
+    out: &mut [f32],
+) {
+    let r = opts.radius.max(1) as isize;
+    let stride = (r as usize).div_ceil(TAPS).max(1) as isize;
+    let inv_s2 = 1.0 / (opts.sigma_color * opts.sigma_color).max(1e-12);
+    let mut taps: Vec<(f32, f32)> = Vec::with_capacity((2 * TAPS + 1).pow(2));
+    let y = y as isize;
+    for (x, refined) in out.iter_mut().enumerate() {
+        let x = x as isize;
+        let i = (y as usize * width + x as usize) * 3;
+        let me = [rgb[i], rgb[i + 1], rgb[i + 2]];
+        taps.clear();
+        let mut dy = -r;
+        while dy <= r {
+            let yy = y + dy;
+            if (0..height as isize).contains(&yy) {
+                let mut dx = -r;
+                while dx <= r {
+                    let xx = x + dx;
+                    if (0..width as isize).contains(&xx) {
+                        let j = yy as usize * width + xx as usize;
+                        let c = &rgb[3 * j..3 * j + 3];
+                        let d2 = (c[0] - me[0]).powi(2)
+                            + (c[1] - me[1]).powi(2)
+                            + (c[2] - me[2]).powi(2);
+                        taps.push((disparity[j], 1.0 / (1.0 + d2 * inv_s2)));
+                    }
+                    dx += stride;
+                }
+            }
+            dy += stride;
+        }
+        *refined = weighted_median(&mut taps);
+    }
+}
+
+/// The first value, in ascending order, at which the running sum of weights reaches
+/// half the total. Found by repeated selection instead of a sort: each round places one
+/// pivot and keeps the side that holds the half-way point, linear time on average.
 fn weighted_median(taps: &mut [(f32, f32)]) -> f32 {
-    taps.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
     let half = taps.iter().map(|t| t.1).sum::<f32>() / 2.0;
-    let mut acc = 0.0;
-    for &(v, w) in taps.iter() {
-        acc += w;
-        if acc >= half {
-            return v;
+    let (mut lo, mut hi, mut below) = (0, taps.len(), 0.0);
+    while hi - lo > 1 {
+        let k = (hi - lo) / 2;
+        let (left, pivot, _) = taps[lo..hi].select_nth_unstable_by(k, |a, b| a.0.total_cmp(&b.0));
+        let left_weight: f32 = left.iter().map(|t| t.1).sum();
+        if below + left_weight >= half {
+            hi = lo + k;
+        } else if below + left_weight + pivot.1 >= half {
+            return pivot.0;
+        } else {
+            below += left_weight + pivot.1;
+            lo += k + 1;
         }
     }
-    taps.last().map_or(0.0, |t| t.0)
+    // Past the end only by rounding: the next value in order is the pivot a previous
+    // round left at `lo` (or the largest, the last).
+    taps.get(lo.min(taps.len().saturating_sub(1)))
+        .map_or(0.0, |t| t.0)
 }
 
 #[cfg(test)]
@@ -122,6 +156,34 @@ mod tests {
         assert_eq!(weighted_median(&mut t), 2.0);
         let mut t = vec![(3.0, 10.0), (1.0, 1.0), (2.0, 1.0)];
         assert_eq!(weighted_median(&mut t), 3.0);
+    }
+
+    #[test]
+    fn selection_finds_what_sorting_finds() {
+        let mut state = 12345u32;
+        let mut next = move || {
+            state = state.wrapping_mul(1664525).wrapping_add(1013904223);
+            (state >> 8) as f32 / (1 << 24) as f32
+        };
+        for n in 1..90 {
+            // Few distinct values, as on a depth plateau, and weights far apart.
+            let taps: Vec<(f32, f32)> = (0..n)
+                .map(|_| ((next() * 6.0).floor(), 0.01 + next() * next() * 10.0))
+                .collect();
+            let mut sorted = taps.clone();
+            sorted.sort_by(|a, b| a.0.total_cmp(&b.0));
+            let half = sorted.iter().map(|t| t.1).sum::<f32>() / 2.0;
+            let mut acc = 0.0;
+            let want = sorted
+                .iter()
+                .find(|t| {
+                    acc += t.1;
+                    acc >= half
+                })
+                .map_or(sorted[n - 1].0, |t| t.0);
+            assert_eq!(weighted_median(&mut taps.clone()), want, "{taps:?}");
+        }
+        assert_eq!(weighted_median(&mut []), 0.0);
     }
 
     #[test]

@@ -150,6 +150,20 @@ pub fn parse_size(text: &str) -> Result<u64, String> {
     Ok(bytes as u64)
 }
 
+/// Keeps every thread's allocations in one glibc heap. By default each thread that
+/// allocates gets a heap (arena) of its own, reserved in 64 MiB pieces that count
+/// against the data-segment limit, and memory freed in one stays with it: with the views
+/// relocated on both cores, a Portrait render of the example photo peaked 30 % higher.
+/// With one heap the peak stays near what is live; the threads allocate few, large
+/// buffers, so they hardly contend for it. Call before any thread starts.
+pub fn share_one_heap() {
+    #[cfg(all(target_os = "linux", target_env = "gnu"))]
+    // SAFETY: mallopt changes a setting of the allocator and touches no memory of ours.
+    unsafe {
+        libc::mallopt(libc::M_ARENA_MAX, 1);
+    }
+}
+
 /// Asks the kernel to hold the process's data segment (heap and private writable
 /// mappings) to `bytes`, so that an allocation the checks did not foresee fails (and
 /// aborts the run) instead of swapping or waking the OOM killer.

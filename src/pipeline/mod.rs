@@ -518,13 +518,14 @@ pub fn render_views(
         }
     };
     progress.set_message("relocating");
-    let mut views = Vec::with_capacity(cameras.len());
-    for (i, camera) in cameras.iter().enumerate() {
-        let colours = reshaded.get(i).unwrap_or(&fitted.image);
-        let view = t.time("relocate", || relocation.render(colours, camera))?;
-        views.push(view.to_rgb8());
-        progress.inc(1);
-    }
+    let views = t.time("relocate", || {
+        crate::parallel::map(cameras.len(), crate::parallel::cores(), |i| {
+            let colours = reshaded.get(i).unwrap_or(&fitted.image);
+            let view = relocation.render(colours, &cameras[i])?.to_rgb8();
+            progress.inc(1);
+            Ok::<_, RelocateError>(view)
+        })
+    })?;
     log::info!("rendered {} views", views.len());
     Ok(views)
 }

@@ -188,12 +188,13 @@ fn fitted_pixels((pw, ph): (u32, u32), (vw, vh): (u32, u32)) -> u64 {
 /// network loaded, which tract needs far more memory for while it optimises the graph
 /// than afterwards. Running: the photo, the fitted photo and the networks are held
 /// throughout, with the larger of relocating the views (the LDI, every view's reshaded
-/// colours, the finished views, one view's rendering scratch) and writing the products
-/// (the views and the larger of the quilt and the panel, made one after the other).
-/// [`factors::SLACK_PERCENT`] is added. Measured against the peak memory of nine renders
-/// (photos of 0.1 to 12 megapixels, four boards, with and without the networks), it lies
-/// 1.06x to 1.47x above it, and each passes with --max-memory at its estimate unless
-/// the per-input check (a quarter of the ceiling for the photo) refuses it first.
+/// colours, the finished views, the rendering scratch of one view per core) and writing
+/// the products (the views and the larger of the quilt and the panel, made one after
+/// the other). [`factors::SLACK_PERCENT`] is added. Measured against the peak memory of
+/// nine renders (photos of 0.1 to 12 megapixels, four boards, with and without the
+/// networks), it lies 1.06x to 1.47x above it, and each passes with --max-memory at its
+/// estimate unless the per-input check (a quarter of the ceiling for the photo) refuses
+/// it first.
 pub fn estimate(size: &RenderSize) -> MemoryEstimate {
     use factors::*;
     let photo = u64::from(size.photo.0) * u64::from(size.photo.1);
@@ -236,7 +237,14 @@ pub fn estimate(size: &RenderSize) -> MemoryEstimate {
         ("layered depth image", m(fitted, LDI)),
         ("reshaded views", m(m(fitted, RESHADED), n)),
         views,
-        ("view rendering", m(view, VIEW_SCRATCH)),
+        // Views are relocated one per core at a time.
+        (
+            "view rendering",
+            m(
+                m(view, VIEW_SCRATCH),
+                n.clamp(1, crate::parallel::cores() as u64),
+            ),
+        ),
     ];
     let quilt = ("quilt", m(size.quilt_pixels, QUILT));
     let panel = (

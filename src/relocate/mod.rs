@@ -64,8 +64,8 @@ pub trait Relocator: Send + Sync {
     }
 }
 
-/// A photo prepared by a [`Relocator`].
-pub trait PreparedRelocation {
+/// A photo prepared by a [`Relocator`]; views render from it on several threads at once.
+pub trait PreparedRelocation: Sync {
     /// The view seen by `view`, with `colours` (the view's reshaded image, in the
     /// source camera's frame, at the prepared size).
     fn render(&self, colours: &SrgbImage, view: &ViewCamera) -> Result<SrgbImage, RelocateError>;

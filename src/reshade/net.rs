@@ -340,9 +340,6 @@ impl Reshader for NetReshader {
     }
 }
 
-/// Working-resolution residuals of one network call, one per view.
-type BatchResult = Result<Vec<Vec<f32>>, NetError>;
-
 /// A photo after the encoder: ready to be reshaded for any number of views.
 pub struct NetPhoto<'a> {
     net: &'a NetReshader,
@@ -394,36 +391,10 @@ impl NetPhoto<'_> {
     /// Working-resolution residuals for `centres`, in order.
     fn residuals(&self, centres: &[[f64; 3]]) -> Result<Vec<Vec<f32>>, NetError> {
         let chunks: Vec<&[[f64; 3]]> = centres.chunks(self.net.options.batch).collect();
-        let workers = self.net.options.parallel_views.min(chunks.len());
-        if workers <= 1 {
-            let mut out = Vec::with_capacity(centres.len());
-            for chunk in chunks {
-                out.extend(self.run_batch(chunk)?);
-            }
-            return Ok(out);
-        }
-        let next = AtomicUsize::new(0);
-        let results: Vec<Mutex<Option<BatchResult>>> =
-            chunks.iter().map(|_| Mutex::new(None)).collect();
-        std::thread::scope(|s| {
-            for _ in 0..workers {
-                s.spawn(|| loop {
-                    let i = next.fetch_add(1, Ordering::Relaxed);
-                    let Some(chunk) = chunks.get(i) else { break };
-                    *results[i].lock().unwrap_or_else(|p| p.into_inner()) =
-                        Some(self.run_batch(chunk));
-                });
-            }
-        });
-        let mut out = Vec::with_capacity(centres.len());
-        for r in results {
-            out.extend(
-                r.into_inner()
-                    .unwrap_or_else(|p| p.into_inner())
-                    .expect("every chunk ran")?,
-            );
-        }
-        Ok(out)
+        let batches = crate::parallel::map(chunks.len(), self.net.options.parallel_views, |i| {
+            self.run_batch(chunks[i])
+        })?;
+        Ok(batches.into_iter().flatten().collect())
     }
 
     /// One network call for `centres.len()` views; their residuals at working resolution.

@@ -98,7 +98,8 @@ pub struct BenchConfig {
     pub boards: Vec<String>,
     /// Timed runs per photo and board (after one untimed warm-up run).
     pub runs: usize,
-    /// Threads for inference (unless the reshading threads are given) and weaving.
+    /// Threads for inference (unless the reshading threads are given), relocation and
+    /// weaving.
     pub threads: usize,
     /// Report files: .md for Markdown, .json for the comparable form.
     pub out: Vec<PathBuf>,

@@ -208,11 +208,9 @@ fn reshade_and_relocate(
         }
     };
     let views = timed(t, "LDI render × views", || {
-        p.cameras
-            .iter()
-            .zip(&colours)
-            .map(|(camera, c)| relocation.render(c, camera))
-            .collect::<Result<Vec<_>, _>>()
+        crate::parallel::map(p.cameras.len(), ctx.threads, |i| {
+            relocation.render(&colours[i], &p.cameras[i])
+        })
     })?;
     Ok(views)
 }
@@ -301,7 +299,7 @@ fn detail(ctx: &Context, stage: &str, board: &Board, run: &Run) -> String {
         }
         "LDI render × views" => {
             let (vw, vh) = board.view_size();
-            format!("{views} views of {vw}x{vh}")
+            format!("{views} views of {vw}x{vh}, {} threads", ctx.threads)
         }
         "weave table" => {
             "Weaver::new: subpixel→view table for the board (once per board and view size)".into()

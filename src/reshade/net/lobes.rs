@@ -296,7 +296,7 @@ impl LobeField {
     pub fn change(&self, centre: [f64; 3], threads: usize) -> Vec<f32> {
         let c = centre.map(|v| v as f32);
         let mut out = vec![0.0f32; 3 * self.width * self.height];
-        in_bands(
+        crate::parallel::bands(
             threads,
             self.height,
             3 * self.width,
@@ -328,7 +328,7 @@ impl LobeField {
         let c = centre.map(|v| v as f32);
         let src = photo.data();
         let mut rgb = vec![0.0f32; 3 * w * h];
-        in_bands(threads, h, 3 * w, &mut rgb, |y0, rows| {
+        crate::parallel::bands(threads, h, 3 * w, &mut rgb, |y0, rows| {
             let base = y0 * w;
             for (j, px) in rows.chunks_exact_mut(3).enumerate() {
                 let i = base + j;
@@ -346,29 +346,6 @@ fn image_from_rgb(w: usize, h: usize, rgb: Vec<f32>) -> SrgbImage {
     let buffer =
         image::Rgb32FImage::from_raw(w as u32, h as u32, rgb).expect("buffer matches size");
     SrgbImage::from_rgb32f(buffer)
-}
-
-/// Runs `f(first_row, rows)` over bands of `out` (`rows` rows of `row_len` values) on up to
-/// `threads` scoped threads.
-fn in_bands(
-    threads: usize,
-    rows: usize,
-    row_len: usize,
-    out: &mut [f32],
-    f: impl Fn(usize, &mut [f32]) + Sync,
-) {
-    let threads = threads.clamp(1, rows.max(1));
-    if threads == 1 || row_len == 0 {
-        f(0, out);
-        return;
-    }
-    let per = rows.div_ceil(threads);
-    std::thread::scope(|s| {
-        for (b, band) in out.chunks_mut(per * row_len).enumerate() {
-            let f = &f;
-            s.spawn(move || f(b * per, band));
-        }
-    });
 }
 
 /// The lobe-head reshading model: its graph, the engine that runs it once per photo, and

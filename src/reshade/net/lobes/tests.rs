@@ -129,20 +129,6 @@ fn the_sky_is_seen_along_its_ray_from_any_camera() {
 }
 
 #[test]
-fn bands_cover_every_row_once_whatever_the_thread_count() {
-    for threads in [1, 2, 3, 7, 50] {
-        let mut out = vec![0.0f32; 5 * 4];
-        in_bands(threads, 5, 4, &mut out, |y0, rows| {
-            for (i, v) in rows.iter_mut().enumerate() {
-                *v += (y0 * 4 + i) as f32;
-            }
-        });
-        let want: Vec<f32> = (0..20).map(|i| i as f32).collect();
-        assert_eq!(out, want, "{threads} threads");
-    }
-}
-
-#[test]
 fn rays_follow_the_scaled_intrinsics_with_integer_pixel_centres() {
     // A 640x480 photo, 90° horizontal field of view: fx = 320, centre (320, 240) in the
     // runtime's convention (pixel i centred at i + 0.5), (319.5, 239.5) in OpenCV's.

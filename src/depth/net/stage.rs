@@ -12,7 +12,7 @@ use crate::engine::manifest::Precision;
 use crate::engine::resample;
 use crate::io::record::FileRecord;
 
-use super::{DepthNet, DepthNetError, OutputKind};
+use super::{DepthNet, DepthNetError, NetworkDepth, OutputKind};
 pub use crate::depth::SceneScale;
 
 /// How depth is estimated when no depth file is given: what the depth options of every
@@ -141,6 +141,18 @@ pub fn network_depth(
 ) -> Result<(DepthMap, StageReport), DepthNetError> {
     let started = std::time::Instant::now();
     let estimate = net.estimate(photo)?;
+    Ok(scene_depth(net, &estimate, photo, opts, started))
+}
+
+/// The rest of [`network_depth`] after the network: `estimate` (`net`'s output for
+/// `photo`) upsampled, refined and scaled; the report's time counts from `started`.
+pub fn scene_depth(
+    net: &DepthNet,
+    estimate: &NetworkDepth,
+    photo: &RgbImage,
+    opts: &StageOptions,
+    started: std::time::Instant,
+) -> (DepthMap, StageReport) {
     let native = [estimate.map.width, estimate.map.height];
     let (map, percentiles, refine) =
         finish(&estimate.disparity(), native, estimate.kind, photo, opts);
@@ -168,7 +180,7 @@ pub fn network_depth(
         depth_range: map.range(),
         time_ms: started.elapsed().as_secs_f64() * 1e3,
     };
-    Ok((map, report))
+    (map, report)
 }
 
 /// Scene depth from depth the photo carries (metric, kept in its units), upright as the

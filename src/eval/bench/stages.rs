@@ -7,7 +7,7 @@ use std::time::Instant;
 use image::RgbImage;
 use interleave::{Board, Weaver};
 
-use crate::depth::net::{network_depth, StageOptions};
+use crate::depth::net::{scene_depth, StageOptions};
 use crate::io::photo::{Photo, SrgbImage};
 use crate::pipeline::Fitted;
 use crate::relocate::reach_of;
@@ -111,15 +111,16 @@ fn run_once(ctx: &Context, photo: &Path, board: &Board) -> Result<Run, BenchErro
         Ok((photo, rgb))
     })?;
     let depth_input = ctx.depth.network_size(rgb.width(), rgb.height())?;
-    let started = Instant::now();
-    timed(&mut t, "depth", || ctx.depth.estimate(&rgb))?;
-    let estimate_ms = started.elapsed().as_secs_f64() * 1e3;
-    // network_depth runs the network again and then the rest of the depth stage; the
-    // rest is its time minus the network's time just measured.
-    let started = Instant::now();
-    let (depth, _) = network_depth(&ctx.depth, &rgb, &StageOptions::default())?;
-    let rest_ms = (started.elapsed().as_secs_f64() * 1e3 - estimate_ms).max(0.0);
-    t.push(("depth refinement", rest_ms));
+    let estimate = timed(&mut t, "depth", || ctx.depth.estimate(&rgb))?;
+    let (depth, _) = timed(&mut t, "depth refinement", || {
+        scene_depth(
+            &ctx.depth,
+            &estimate,
+            &rgb,
+            &StageOptions::default(),
+            Instant::now(),
+        )
+    });
     let (vw, vh) = board.view_size();
     let fitted = timed(&mut t, "fit to view size", || {
         Fitted::new(&photo.image, photo.hfov_deg, &depth, vw, vh)
@@ -256,10 +257,7 @@ fn detail(ctx: &Context, stage: &str, board: &Board, run: &Run) -> String {
             run.depth_input.0,
             run.depth_input.1
         ),
-        "depth refinement" => {
-            "upsample to the photo, edge-aware refinement, scene scaling (network_depth − depth)"
-                .into()
-        }
+        "depth refinement" => "upsample to the photo, edge-aware refinement, scene scaling".into(),
         "fit to view size" => format!("photo and depth resized to {ww}x{wh}"),
         "LDI build + inpainting" => format!(
             "once per photo at {ww}x{wh} by the runtime's relocator: {}",

@@ -164,6 +164,17 @@ pub fn share_one_heap() {
     }
 }
 
+/// Hands memory the allocator holds but nothing uses back to the kernel, so that the
+/// resident size is what is live: a process that runs several jobs one after another
+/// (`bench`'s cases) then measures each job's own peak, not the pages an earlier one freed.
+pub fn release_freed_memory() {
+    #[cfg(all(target_os = "linux", target_env = "gnu"))]
+    // SAFETY: malloc_trim only returns free pages of the allocator's heaps to the kernel.
+    unsafe {
+        libc::malloc_trim(0);
+    }
+}
+
 /// Asks the kernel to hold the process's data segment (heap and private writable
 /// mappings) to `bytes`, so that an allocation the checks did not foresee fails (and
 /// aborts the run) instead of swapping or waking the OOM killer.

@@ -324,6 +324,10 @@ pub fn render(
     let cameras = rig.cameras(&fitted.reference);
     let shading_centres = shading.centres();
     let frame = TrainingFrame::for_focus(focus);
+    let mut inputs = scene.inputs()?;
+    // Everything past here works at the views' size: the photo and its depth at full
+    // resolution would be a third of a 12-megapixel render's peak memory.
+    drop(scene);
     let views = render_views(
         &fitted,
         (&cameras, &shading_centres),
@@ -348,7 +352,6 @@ pub fn render(
     } else {
         None
     };
-    let mut inputs = scene.inputs()?;
     inputs.board_file = file_record(opts.board_file.as_deref())?;
     inputs.calibration = file_record(opts.calibration.as_deref())?;
     let record = RunRecord {
@@ -494,7 +497,9 @@ pub fn reshade_views<'a>(
 }
 
 /// Every view: the photo reshaded for its shading camera (unless `reshader` is `None`,
-/// when the views keep the photo's colours), relocated to its camera.
+/// when the views keep the photo's colours), relocated to its camera. The views are
+/// reshaded as they are relocated, one per core at a time, so that only that many
+/// reshaded images are held, not one per view.
 pub fn render_views(
     fitted: &Fitted,
     (cameras, shading): (&[ViewCamera], &[[f64; 3]]),
@@ -504,28 +509,48 @@ pub fn render_views(
     progress: &Progress,
     t: &mut Timings,
 ) -> Result<Vec<RgbImage>, PipelineError> {
-    // The network reshades all views in one call (key views and batches), so the bar
-    // counts views as they are relocated.
-    progress.set_message("reshading");
-    let (reshaded, relocation) = match reshader {
-        Some(reshader) => reshade_views(fitted, (cameras, shading), frame, reshader, relocator, t)?,
-        None => {
-            let reach = relocate::reach_of(cameras.iter().map(|c| c.centre), &fitted.source);
-            let relocation = t.time("relocate_prepare", || {
-                relocator.prepare(&fitted.image, &fitted.depth, &fitted.source, reach)
-            })?;
-            (Vec::new(), relocation)
-        }
+    progress.set_message(if reshader.is_some() {
+        "reshading and relocating"
+    } else {
+        "relocating"
+    });
+    let training_depth = frame.depth(&fitted.depth);
+    let prepared = match reshader {
+        Some(r) => Some(t.time("reshade_prepare", || {
+            r.prepare(&fitted.image, &training_depth, &fitted.source)
+        })?),
+        None => None,
     };
-    progress.set_message("relocating");
-    let views = t.time("relocate", || {
-        crate::parallel::map(cameras.len(), crate::parallel::cores(), |i| {
-            let colours = reshaded.get(i).unwrap_or(&fitted.image);
-            let view = relocation.render(colours, &cameras[i])?.to_rgb8();
-            progress.inc(1);
-            Ok::<_, RelocateError>(view)
-        })
+    let reach = relocate::reach_of(cameras.iter().map(|c| c.centre), &fitted.source);
+    let relocation = t.time("relocate_prepare", || {
+        relocator.prepare(&fitted.image, &fitted.depth, &fitted.source, reach)
     })?;
+    let centres: Vec<[f64; 3]> = shading.iter().map(|&c| frame.camera(c)).collect();
+    let mut reshaded = prepared.as_ref().map(|p| p.reshade_each(&centres));
+    let threads = crate::parallel::cores();
+    let mut views = Vec::with_capacity(cameras.len());
+    while views.len() < cameras.len() {
+        let first = views.len();
+        let count = threads.min(cameras.len() - first);
+        let colours: Vec<SrgbImage> = match &mut reshaded {
+            Some(stream) => t.time("reshade", || {
+                stream
+                    .by_ref()
+                    .take(count)
+                    .collect::<Result<_, ReshadeError>>()
+            })?,
+            None => Vec::new(),
+        };
+        let relocated = t.time("relocate", || {
+            crate::parallel::map(count, threads, |i| {
+                let colours = colours.get(i).unwrap_or(&fitted.image);
+                let view = relocation.render(colours, &cameras[first + i])?.to_rgb8();
+                progress.inc(1);
+                Ok::<_, RelocateError>(view)
+            })
+        })?;
+        views.extend(relocated);
+    }
     log::info!("rendered {} views", views.len());
     Ok(views)
 }

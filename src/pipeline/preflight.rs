@@ -143,6 +143,9 @@ pub struct RenderSize {
     pub network: Option<(f64, u32)>,
     /// Whether the depth network may run.
     pub depth_network: bool,
+    /// Reshaded images held at once while the views are relocated (0 without a
+    /// network): see [`reshaded_at_once`].
+    pub reshaded_at_once: u32,
 }
 
 /// An estimate of the memory a render needs, by part.
@@ -187,8 +190,8 @@ fn fitted_pixels((pw, ph): (u32, u32), (vw, vh): (u32, u32)) -> u64 {
 /// moments. Loading: the reshading network is loaded, the photo decoded, and the depth
 /// network loaded, which tract needs far more memory for while it optimises the graph
 /// than afterwards. Running: the photo, the fitted photo and the networks are held
-/// throughout, with the larger of relocating the views (the LDI, every view's reshaded
-/// colours, the finished views, the rendering scratch of one view per core) and writing
+/// throughout, with the larger of relocating the views (the LDI, the reshaded colours
+/// of the views in flight, the finished views, the rendering scratch of one view per core) and writing
 /// the products (the views and the larger of the quilt and the panel, made one after
 /// the other). [`factors::SLACK_PERCENT`] is added. Measured against the peak memory of
 /// nine renders (photos of 0.1 to 12 megapixels, four boards, with and without the
@@ -235,7 +238,10 @@ pub fn estimate(size: &RenderSize) -> MemoryEstimate {
     let views = ("views", m(m(view, VIEW), n));
     let relocating = [
         ("layered depth image", m(fitted, LDI)),
-        ("reshaded views", m(m(fitted, RESHADED), n)),
+        (
+            "reshaded views",
+            m(m(fitted, RESHADED), n.min(u64::from(size.reshaded_at_once))),
+        ),
         views,
         // Views are relocated one per core at a time.
         (
@@ -348,7 +354,26 @@ pub fn render_size(
         table_bytes: board.filter().table_bytes_per_subpixel(),
         network: reshading_on(reshade.model.as_deref()).then_some((reshade.scale, at_once)),
         depth_network,
+        reshaded_at_once: if reshading_on(reshade.model.as_deref()) {
+            reshaded_at_once(reshade, board.views())
+        } else {
+            0
+        },
     }
+}
+
+/// The reshaded images a render holds at once, of `views` (the views stream through
+/// reshading into relocation): the views the network decodes at once, the residuals of
+/// the key views when the others are interpolated, and one view per core being relocated.
+pub fn reshaded_at_once(reshade: &crate::reshade::net::choice::ReshadeConfig, views: usize) -> u32 {
+    let keys = reshade
+        .key_views
+        .filter(|&k| (2..views).contains(&k))
+        .unwrap_or(0);
+    let held = u64::from(views_at_once(reshade))
+        .saturating_add(keys as u64)
+        .saturating_add(crate::parallel::cores() as u64);
+    held.min(views as u64) as u32
 }
 
 /// The views the reshading network decodes at once: --reshade-batch times
@@ -403,6 +428,7 @@ pub fn single_view_size(
         table_bytes: 1,
         network: reshade.and_then(|r| reshading_on(r.model.as_deref()).then_some((r.scale, 1))),
         depth_network,
+        reshaded_at_once: 1,
     }
 }
 
@@ -421,6 +447,7 @@ pub fn depth_network_estimate(reshading: bool) -> MemoryEstimate {
         table_bytes: 1,
         network: reshading.then_some((1.0, 1)),
         depth_network: true,
+        reshaded_at_once: 0,
     })
 }
 
@@ -441,6 +468,7 @@ mod tests {
             table_bytes: 3,
             network: networks.then_some((1.0, 1)),
             depth_network: networks,
+            reshaded_at_once: if networks { 3 } else { 0 },
         }
     }
 
@@ -481,7 +509,33 @@ mod tests {
             table_bytes: 1,
             network: None,
             depth_network: true,
+            reshaded_at_once: 0,
         });
         assert!(tiny.parts.iter().any(|p| p.1 == factors::DEPTH_NET_LOADING));
+    }
+
+    /// Views stream from reshading into relocation: a render holds the views decoded at
+    /// once, the key views' residuals and one view per core, never more than the board's
+    /// views, and the estimate follows that count, not the board's views.
+    #[test]
+    fn reshaded_views_held_at_once_follow_the_stream_not_the_board() {
+        let cores = crate::parallel::cores() as u32;
+        let mut config = crate::reshade::net::choice::ReshadeConfig {
+            batch: 2,
+            parallel_views: 3,
+            ..Default::default()
+        };
+        assert_eq!(reshaded_at_once(&config, 66), 6 + cores);
+        assert_eq!(reshaded_at_once(&config, 4), 4);
+        config.key_views = Some(9);
+        assert_eq!(reshaded_at_once(&config, 66), 6 + 9 + cores);
+        let board = interleave::Board::builtin("looking-glass-go").unwrap();
+        let total = |held: u32| {
+            let mut s = size(&board, (4032, 3024), true);
+            s.reshaded_at_once = held;
+            estimate(&s).total()
+        };
+        assert!(total(4) < total(66));
+        assert_eq!(total(66), total(1000));
     }
 }

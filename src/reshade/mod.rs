@@ -46,10 +46,20 @@ pub trait PreparedPhoto {
     /// The photo reshaded for a camera at `centre` (input camera frame, training units).
     fn reshade(&self, centre: [f64; 3]) -> Result<SrgbImage, ReshadeError>;
 
-    /// The photo reshaded for every camera, in order. Given all views at once, a network
-    /// can run only some of them and interpolate the rest (`--key-views`).
+    /// The photo reshaded for every camera, in order, each view made when it is pulled:
+    /// a caller that is done with each view before it pulls the next holds only a few.
+    /// Given all views at once, a network can run only some of them and interpolate the
+    /// rest (`--key-views`).
+    fn reshade_each<'s>(
+        &'s self,
+        centres: &'s [[f64; 3]],
+    ) -> Box<dyn Iterator<Item = Result<SrgbImage, ReshadeError>> + 's> {
+        Box::new(centres.iter().map(|&c| self.reshade(c)))
+    }
+
+    /// The photo reshaded for every camera, in order, all held at once.
     fn reshade_all(&self, centres: &[[f64; 3]]) -> Result<Vec<SrgbImage>, ReshadeError> {
-        centres.iter().map(|&c| self.reshade(c)).collect()
+        self.reshade_each(centres).collect()
     }
 }
 

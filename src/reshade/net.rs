@@ -359,33 +359,35 @@ impl NetPhoto<'_> {
     /// The photo reshaded for every camera in `centres`, using the options' key views,
     /// batching and parallelism.
     pub fn reshade_views(&self, centres: &[[f64; 3]]) -> Result<Vec<SrgbImage>, NetError> {
+        self.views(centres).collect()
+    }
+
+    /// The photo reshaded for every camera in `centres`, in order, computed as the views
+    /// are pulled. With every view a key view, `--reshade-batch × --parallel-views` views
+    /// are decoded at a time; with fewer key views, the key views' residuals are decoded
+    /// at the first pull and the others interpolated one by one. A caller that consumes
+    /// each view before pulling the next thus holds a few views, not all of them.
+    pub fn views<'s>(&'s self, centres: &'s [[f64; 3]]) -> ViewStream<'s> {
         let sources = keys::plan(centres, self.net.options.key_views.unwrap_or(usize::MAX));
-        let key_views: Vec<usize> = (0..centres.len())
-            .filter(|&v| sources[v] == keys::Source::Key)
-            .collect();
-        let key_centres: Vec<[f64; 3]> = key_views.iter().map(|&v| centres[v]).collect();
-        let residuals = self.residuals(&key_centres)?;
-        let slot = |v: usize| key_views.iter().position(|&k| k == v).expect("a key view");
+        ViewStream {
+            photo: self,
+            centres,
+            sources,
+            keys: None,
+            pending: std::collections::VecDeque::new(),
+            next: 0,
+        }
+    }
+
+    /// Logs (once per stream) how many of `asked` views were beyond the trained range.
+    fn report_clamped(&self, asked: usize) {
         let clamped = self.clamped.swap(0, Ordering::Relaxed);
         if clamped > 0 {
             log::info!(
-                "{clamped} of {} reshaded views asked for camera offsets beyond {:.3} (the trained range); reshaded as at that distance",
-                key_centres.len(),
+                "{clamped} of {asked} reshaded views asked for camera offsets beyond {:.3} (the trained range); reshaded as at that distance",
                 self.net.max_offset
             );
         }
-        Ok(sources
-            .iter()
-            .enumerate()
-            .map(|(v, source)| match *source {
-                keys::Source::Key => self.compose(&residuals[slot(v)]),
-                keys::Source::Blend { a, b, t } => {
-                    let (ra, rb) = (&residuals[slot(a)], &residuals[slot(b)]);
-                    let blend: Vec<f32> = ra.iter().zip(rb).map(|(x, y)| x + (y - x) * t).collect();
-                    self.compose(&blend)
-                }
-            })
-            .collect())
     }
 
     /// Working-resolution residuals for `centres`, in order.
@@ -531,13 +533,100 @@ impl NetPhoto<'_> {
     }
 }
 
+/// The views of a [`NetPhoto`] in order, decoded as they are pulled
+/// ([`NetPhoto::views`]). After an error it ends.
+pub struct ViewStream<'s> {
+    photo: &'s NetPhoto<'s>,
+    centres: &'s [[f64; 3]],
+    sources: Vec<keys::Source>,
+    /// With interpolated views: the key views and their residuals, in view order.
+    keys: Option<(Vec<usize>, Vec<Vec<f32>>)>,
+    /// With every view a key view: decoded views not yet pulled.
+    pending: std::collections::VecDeque<SrgbImage>,
+    next: usize,
+}
+
+impl ViewStream<'_> {
+    fn every_view_is_a_key(&self) -> bool {
+        self.sources.iter().all(|s| *s == keys::Source::Key)
+    }
+
+    /// Decodes the next `--reshade-batch × --parallel-views` views into `pending`.
+    fn decode_next_views(&mut self) -> Result<(), NetError> {
+        let options = &self.photo.net.options;
+        let at_once = options.batch.max(1) * options.parallel_views.max(1);
+        let end = self.centres.len().min(self.next + at_once);
+        let residuals = self.photo.residuals(&self.centres[self.next..end])?;
+        self.pending = residuals.iter().map(|r| self.photo.compose(r)).collect();
+        Ok(())
+    }
+
+    /// The view `v` from the key views' residuals, decoding them on first use.
+    fn interpolated(&mut self, v: usize) -> Result<SrgbImage, NetError> {
+        if self.keys.is_none() {
+            let key_views: Vec<usize> = (0..self.sources.len())
+                .filter(|&k| self.sources[k] == keys::Source::Key)
+                .collect();
+            let centres: Vec<[f64; 3]> = key_views.iter().map(|&k| self.centres[k]).collect();
+            let residuals = self.photo.residuals(&centres)?;
+            self.photo.report_clamped(key_views.len());
+            self.keys = Some((key_views, residuals));
+        }
+        let (key_views, residuals) = self.keys.as_ref().expect("decoded above");
+        let slot = |k: usize| {
+            key_views
+                .iter()
+                .position(|&key| key == k)
+                .expect("a key view")
+        };
+        Ok(match self.sources[v] {
+            keys::Source::Key => self.photo.compose(&residuals[slot(v)]),
+            keys::Source::Blend { a, b, t } => {
+                let (ra, rb) = (&residuals[slot(a)], &residuals[slot(b)]);
+                let blend: Vec<f32> = ra.iter().zip(rb).map(|(x, y)| x + (y - x) * t).collect();
+                self.photo.compose(&blend)
+            }
+        })
+    }
+}
+
+impl Iterator for ViewStream<'_> {
+    type Item = Result<SrgbImage, NetError>;
+
+    fn next(&mut self) -> Option<Self::Item> {
+        let n = self.centres.len();
+        if self.next >= n {
+            return None;
+        }
+        let view = if self.every_view_is_a_key() {
+            if self.pending.is_empty() {
+                if let Err(e) = self.decode_next_views() {
+                    self.next = n;
+                    return Some(Err(e));
+                }
+            }
+            Ok(self.pending.pop_front().expect("decoded at least one view"))
+        } else {
+            self.interpolated(self.next)
+        };
+        self.next = if view.is_ok() { self.next + 1 } else { n };
+        if self.next == n && self.every_view_is_a_key() {
+            self.photo.report_clamped(n);
+        }
+        Some(view)
+    }
+}
+
 impl PreparedPhoto for NetPhoto<'_> {
     fn reshade(&self, centre: [f64; 3]) -> Result<SrgbImage, ReshadeError> {
         Ok(self.reshade_views(&[centre])?.remove(0))
     }
 
-    fn reshade_all(&self, centres: &[[f64; 3]]) -> Result<Vec<SrgbImage>, ReshadeError> {
-        Ok(self.reshade_views(centres)?)
+    fn reshade_each<'s>(
+        &'s self,
+        centres: &'s [[f64; 3]],
+    ) -> Box<dyn Iterator<Item = Result<SrgbImage, ReshadeError>> + 's> {
+        Box::new(self.views(centres).map(|v| v.map_err(ReshadeError::from)))
     }
 }
 

@@ -56,6 +56,8 @@ pub enum BenchError {
     #[error(transparent)]
     Relocate(#[from] RelocateError),
     #[error(transparent)]
+    Pipeline(#[from] crate::pipeline::PipelineError),
+    #[error(transparent)]
     Output(#[from] OutputError),
     #[error(transparent)]
     View(#[from] ViewError),
@@ -218,6 +220,13 @@ impl BenchReshader {
         match self {
             BenchReshader::Residual(net) => net.description(),
             BenchReshader::Lobes(net) => net.description(),
+        }
+    }
+
+    pub fn as_reshader(&self) -> &dyn crate::reshade::Reshader {
+        match self {
+            BenchReshader::Residual(net) => net,
+            BenchReshader::Lobes(net) => net,
         }
     }
 
@@ -455,8 +464,10 @@ fn load_average() -> Option<[f64; 3]> {
 
 mod memory {
     /// Resets the kernel's peak-RSS counter for this process (Linux `clear_refs` 5), so
-    /// each case's peak is its own.
+    /// each case's peak is its own, after handing back what earlier cases freed (which
+    /// the allocator would otherwise keep resident).
     pub fn reset_peak() -> bool {
+        crate::io::limits::release_freed_memory();
         std::fs::write("/proc/self/clear_refs", "5").is_ok()
     }
 

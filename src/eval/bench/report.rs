@@ -23,7 +23,6 @@ pub const STAGES: &[&str] = &[
     "reshade decoder × views",
     "LDI render × views",
     "weave table",
-    "views to 8-bit",
     "weave",
     "encode/write",
 ];

@@ -8,9 +8,10 @@ use image::RgbImage;
 use interleave::{Board, Weaver};
 
 use crate::depth::net::{scene_depth, StageOptions};
-use crate::io::photo::{Photo, SrgbImage};
-use crate::pipeline::Fitted;
-use crate::relocate::reach_of;
+use crate::io::photo::Photo;
+use crate::io::record::Timings;
+use crate::pipeline::progress::Progress;
+use crate::pipeline::{render_views, Fitted};
 use crate::reshade::net::choice::Head;
 use crate::reshade::net::NetReshader;
 use crate::reshade::TrainingFrame;
@@ -125,6 +126,9 @@ fn run_once(ctx: &Context, photo: &Path, board: &Board) -> Result<Run, BenchErro
     let fitted = timed(&mut t, "fit to view size", || {
         Fitted::new(&photo.image, photo.hfov_deg, &depth, vw, vh)
     });
+    let photo_size = [rgb.width(), rgb.height()];
+    // As in `render`: nothing at the photo's full resolution is held past the fit.
+    drop((photo, rgb, estimate, depth));
     let prepared = cameras(fitted, board)?;
     let views = reshade_and_relocate(ctx, &prepared, &mut t)?;
     let candidate_ms = ctx
@@ -135,10 +139,7 @@ fn run_once(ctx: &Context, photo: &Path, board: &Board) -> Result<Run, BenchErro
     let weaver = timed(&mut t, "weave table", || {
         Weaver::new(board, vw, vh).with_threads(ctx.threads)
     });
-    let rgb8: Vec<RgbImage> = timed(&mut t, "views to 8-bit", || {
-        views.iter().map(SrgbImage::to_rgb8).collect()
-    });
-    let panel = timed(&mut t, "weave", || weaver.weave(&rgb8))?;
+    let panel = timed(&mut t, "weave", || weaver.weave(&views))?;
     let out = ctx.work_dir.0.join("panel.png");
     timed(&mut t, "encode/write", || -> Result<(), BenchError> {
         let bytes = crate::io::output::encode_png(&out, &panel)?;
@@ -148,7 +149,7 @@ fn run_once(ctx: &Context, photo: &Path, board: &Board) -> Result<Run, BenchErro
     Ok(Run {
         times: t,
         candidate_ms,
-        photo_size: [rgb.width(), rgb.height()],
+        photo_size,
         depth_input,
         work_size: [
             prepared.fitted.image.width(),
@@ -171,48 +172,39 @@ fn cameras(fitted: Fitted, board: &Board) -> Result<Prepared, BenchError> {
     })
 }
 
-/// The per-photo halves (reshading encoder, relocation build) once, then every view's
-/// reshading and render, with the runtime's relocator.
+/// Every view reshaded and relocated as `render` does it ([`render_views`]: the views
+/// stream from the reshading into the relocation, one per core at a time), with the
+/// per-photo halves (reshading encoder, relocation build) and the per-view ones timed
+/// apart.
 fn reshade_and_relocate(
     ctx: &Context,
     p: &Prepared,
     t: &mut RunTimes,
-) -> Result<Vec<SrgbImage>, BenchError> {
-    let fitted = &p.fitted;
-    let relocation = timed(t, "LDI build + inpainting", || {
-        let reach = reach_of(p.cameras.iter().map(|c| c.centre), &fitted.source);
-        ctx.relocator
-            .prepare(&fitted.image, &fitted.depth, &fitted.source, reach)
-    })?;
-    let training_depth = p.frame.depth(&fitted.depth);
-    let centres: Vec<[f64; 3]> = p.cameras.iter().map(|c| p.frame.camera(c.centre)).collect();
-    let colours = match &ctx.reshader {
-        BenchReshader::Residual(net) => {
-            let prepared = timed(t, "reshade encoder", || {
-                net.prepare_photo(&fitted.image, &training_depth)
-            })?;
-            timed(t, "reshade decoder × views", || {
-                prepared.reshade_views(&centres)
-            })?
-        }
-        // The lobe network in the encoder's row, the closed form in the decoder's.
-        BenchReshader::Lobes(net) => {
-            let prepared = timed(t, "reshade encoder", || {
-                net.prepare_photo(&fitted.image, &training_depth, &fitted.source)
-            })?;
-            timed(t, "reshade decoder × views", || {
-                centres
-                    .iter()
-                    .map(|&c| prepared.reshade_view(c))
-                    .collect::<Result<Vec<_>, _>>()
-            })?
-        }
+) -> Result<Vec<RgbImage>, BenchError> {
+    let mut times = Timings::default();
+    let shading: Vec<[f64; 3]> = p.cameras.iter().map(|c| c.centre).collect();
+    let views = render_views(
+        &p.fitted,
+        (&p.cameras, &shading),
+        p.frame,
+        Some(ctx.reshader.as_reshader()),
+        &*ctx.relocator,
+        &Progress::hidden(),
+        &mut times,
+    )?;
+    let ms = |stage: &str| {
+        times
+            .stages()
+            .iter()
+            .find(|(s, _)| s == stage)
+            .map_or(0.0, |(_, ms)| *ms)
     };
-    let views = timed(t, "LDI render × views", || {
-        crate::parallel::map(p.cameras.len(), ctx.threads, |i| {
-            relocation.render(&colours[i], &p.cameras[i])
-        })
-    })?;
+    t.extend([
+        ("LDI build + inpainting", ms("relocate_prepare")),
+        ("reshade encoder", ms("reshade_prepare")),
+        ("reshade decoder × views", ms("reshade")),
+        ("LDI render × views", ms("relocate")),
+    ]);
     Ok(views)
 }
 
@@ -297,12 +289,14 @@ fn detail(ctx: &Context, stage: &str, board: &Board, run: &Run) -> String {
         }
         "LDI render × views" => {
             let (vw, vh) = board.view_size();
-            format!("{views} views of {vw}x{vh}, {} threads", ctx.threads)
+            format!(
+                "{views} views of {vw}x{vh}, rounded to 8-bit, one per core ({} threads)",
+                crate::parallel::cores()
+            )
         }
         "weave table" => {
             "Weaver::new: subpixel→view table for the board (once per board and view size)".into()
         }
-        "views to 8-bit" => "every view rounded to 8-bit sRGB (render writes these)".into(),
         "weave" => format!("subpixel weave of the 8-bit views, {} threads", ctx.threads),
         "encode/write" => "panel PNG encode + atomic write".into(),
         _ => String::new(),

@@ -133,6 +133,11 @@ fn check_memory(args: &LiveConfig, board: &Board, frame: (u32, u32)) -> Result<(
             crate::pipeline::preflight::views_at_once(&args.reshade),
         )),
         depth_network: depth,
+        reshaded_at_once: if reshading {
+            crate::pipeline::preflight::reshaded_at_once(&args.reshade, board.views())
+        } else {
+            0
+        },
     };
     crate::pipeline::preflight::check_memory(
         format!(

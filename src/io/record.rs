@@ -69,6 +69,14 @@ impl Timings {
     pub fn stages(&self) -> &[(String, f64)] {
         &self.stages
     }
+
+    /// The time of `stage` so far (0 if it has not run).
+    pub fn ms(&self, stage: &str) -> f64 {
+        self.stages
+            .iter()
+            .find(|(s, _)| s == stage)
+            .map_or(0.0, |(_, ms)| *ms)
+    }
 }
 
 /// A JSON object in stage order.
@@ -105,6 +113,7 @@ mod tests {
         t.add("b", 2.0);
         t.add("a", 3.0);
         assert_eq!(t.stages(), [("a".into(), 4.0), ("b".into(), 2.0)]);
+        assert_eq!((t.ms("a"), t.ms("c")), (4.0, 0.0));
         assert_eq!(serde_json::to_string(&t).unwrap(), r#"{"a":4.0,"b":2.0}"#);
     }
 }

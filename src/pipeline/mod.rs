@@ -487,13 +487,23 @@ pub fn reshade_views<'a>(
     let prepared = t.time("reshade_prepare", || {
         reshader.prepare(&fitted.image, &training_depth, &fitted.source)
     })?;
-    let reach = relocate::reach_of(cameras.iter().map(|c| c.centre), &fitted.source);
-    let relocation = t.time("relocate_prepare", || {
-        relocator.prepare(&fitted.image, &fitted.depth, &fitted.source, reach)
-    })?;
+    let relocation = prepare_relocation(fitted, cameras, relocator, t)?;
     let centres: Vec<[f64; 3]> = shading.iter().map(|&c| frame.camera(c)).collect();
     let reshaded = t.time("reshade", || prepared.reshade_all(&centres))?;
     Ok((reshaded, relocation))
+}
+
+/// The relocation of `fitted` prepared once for the views' `cameras`.
+fn prepare_relocation<'a>(
+    fitted: &Fitted,
+    cameras: &[ViewCamera],
+    relocator: &'a dyn Relocator,
+    t: &mut Timings,
+) -> Result<Box<dyn PreparedRelocation + 'a>, RelocateError> {
+    let reach = relocate::reach_of(cameras.iter().map(|c| c.centre), &fitted.source);
+    t.time("relocate_prepare", || {
+        relocator.prepare(&fitted.image, &fitted.depth, &fitted.source, reach)
+    })
 }
 
 /// Every view: the photo reshaded for its shading camera (unless `reshader` is `None`,
@@ -521,10 +531,7 @@ pub fn render_views(
         })?),
         None => None,
     };
-    let reach = relocate::reach_of(cameras.iter().map(|c| c.centre), &fitted.source);
-    let relocation = t.time("relocate_prepare", || {
-        relocator.prepare(&fitted.image, &fitted.depth, &fitted.source, reach)
-    })?;
+    let relocation = prepare_relocation(fitted, cameras, relocator, t)?;
     let centres: Vec<[f64; 3]> = shading.iter().map(|&c| frame.camera(c)).collect();
     let mut reshaded = prepared.as_ref().map(|p| p.reshade_each(&centres));
     let threads = crate::parallel::cores();

@@ -372,6 +372,7 @@ impl NetPhoto<'_> {
         ViewStream {
             photo: self,
             centres,
+            every_view_is_a_key: sources.iter().all(|s| *s == keys::Source::Key),
             sources,
             keys: None,
             pending: std::collections::VecDeque::new(),
@@ -539,6 +540,8 @@ pub struct ViewStream<'s> {
     photo: &'s NetPhoto<'s>,
     centres: &'s [[f64; 3]],
     sources: Vec<keys::Source>,
+    /// Then views are decoded a few at a time; otherwise all key views at the first pull.
+    every_view_is_a_key: bool,
     /// With interpolated views: the key views and their residuals, in view order.
     keys: Option<(Vec<usize>, Vec<Vec<f32>>)>,
     /// With every view a key view: decoded views not yet pulled.
@@ -547,10 +550,6 @@ pub struct ViewStream<'s> {
 }
 
 impl ViewStream<'_> {
-    fn every_view_is_a_key(&self) -> bool {
-        self.sources.iter().all(|s| *s == keys::Source::Key)
-    }
-
     /// Decodes the next `--reshade-batch × --parallel-views` views into `pending`.
     fn decode_next_views(&mut self) -> Result<(), NetError> {
         let options = &self.photo.net.options;
@@ -598,7 +597,7 @@ impl Iterator for ViewStream<'_> {
         if self.next >= n {
             return None;
         }
-        let view = if self.every_view_is_a_key() {
+        let view = if self.every_view_is_a_key {
             if self.pending.is_empty() {
                 if let Err(e) = self.decode_next_views() {
                     self.next = n;
@@ -610,7 +609,7 @@ impl Iterator for ViewStream<'_> {
             self.interpolated(self.next)
         };
         self.next = if view.is_ok() { self.next + 1 } else { n };
-        if self.next == n && self.every_view_is_a_key() {
+        if self.next == n && self.every_view_is_a_key {
             self.photo.report_clamped(n);
         }
         Some(view)

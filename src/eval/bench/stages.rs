@@ -192,18 +192,11 @@ fn reshade_and_relocate(
         &Progress::hidden(),
         &mut times,
     )?;
-    let ms = |stage: &str| {
-        times
-            .stages()
-            .iter()
-            .find(|(s, _)| s == stage)
-            .map_or(0.0, |(_, ms)| *ms)
-    };
     t.extend([
-        ("LDI build + inpainting", ms("relocate_prepare")),
-        ("reshade encoder", ms("reshade_prepare")),
-        ("reshade decoder × views", ms("reshade")),
-        ("LDI render × views", ms("relocate")),
+        ("LDI build + inpainting", times.ms("relocate_prepare")),
+        ("reshade encoder", times.ms("reshade_prepare")),
+        ("reshade decoder × views", times.ms("reshade")),
+        ("LDI render × views", times.ms("relocate")),
     ]);
     Ok(views)
 }

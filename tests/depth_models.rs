@@ -94,9 +94,15 @@ fn metric_depth_model_nhwc_0_255_fixed_size_at_half_resolution() {
     let depth = |c: [u8; 3]| 1.0 + 0.01 * conv(c.map(f32::from));
     check_halves(&out.map.values, 24, 16, depth(LEFT), depth(RIGHT));
     // Metric depth keeps its units through the stage; relative kinds get near/far.
-    let (map, report) =
-        depth_net::network_depth(&net, &halves(100, 50), &StageOptions::default()).unwrap();
+    let opts = StageOptions::default();
+    let (map, report) = depth_net::network_depth(&net, &halves(100, 50), [100, 50], &opts).unwrap();
     assert_eq!((map.width(), map.height()), (100, 50));
+    // Asked for the views' smaller size, the stage refines and scales there: the same
+    // depths, at that size.
+    let (small, _) = depth_net::network_depth(&net, &halves(100, 50), [40, 20], &opts).unwrap();
+    assert_eq!((small.width(), small.height()), (40, 20));
+    assert!((small.at(0, 0) - depth(LEFT)).abs() < 1e-3);
+    assert!((small.at(39, 19) - depth(RIGHT)).abs() < 1e-3);
     assert!(
         (map.at(0, 0) - depth(LEFT)).abs() < 1e-3,
         "{}",
@@ -120,7 +126,7 @@ fn relative_output_lands_between_near_and_far() {
         },
         refine: None,
     };
-    let (map, report) = depth_net::network_depth(&net, &halves(96, 48), &opts).unwrap();
+    let (map, report) = depth_net::network_depth(&net, &halves(96, 48), [96, 48], &opts).unwrap();
     assert_eq!((map.width(), map.height()), (96, 48));
     // LEFT has the larger log-disparity: nearer, at `near`; RIGHT at near + budget.
     let bgr = |c: [u8; 3]| conv([c[2], c[1], c[0]].map(|v| f32::from(v) / 255.0));

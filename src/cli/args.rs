@@ -84,11 +84,18 @@ impl SceneArgs {
         !matches!(self.depth, DepthInput::File(_))
     }
 
-    /// The photo and its depth, loaded.
-    pub fn load(&self) -> Result<Scene> {
+    /// The photo and its depth, loaded; with `views` (their size), estimated depth at
+    /// the size the photo is fitted to for them (see `Scene::load`).
+    pub fn load(&self, views: Option<(u32, u32)>) -> Result<Scene> {
         let depth = self.scene_depth()?;
         let mut timings = reshader::io::record::Timings::default();
-        Ok(Scene::load(&self.photo, &depth, self.fov, &mut timings)?)
+        Ok(Scene::load(
+            &self.photo,
+            &depth,
+            self.fov,
+            views,
+            &mut timings,
+        )?)
     }
 }
 
@@ -174,6 +181,22 @@ impl EstimateArgs {
     }
 }
 
+/// `--key-views`: a count of key views, or every view (`all`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct KeyViews(pub Option<usize>);
+
+pub fn parse_key_views(s: &str) -> Result<KeyViews, String> {
+    if s == "all" {
+        return Ok(KeyViews(None));
+    }
+    match s.parse::<usize>() {
+        Ok(k) if k >= 2 => Ok(KeyViews(Some(k))),
+        _ => Err(format!(
+            "`{s}` is neither `all` nor a count of at least 2 (the two outermost views are always keys)"
+        )),
+    }
+}
+
 /// Parses the precision of the depth models (only int8 and fp32 are shipped).
 pub fn parse_depth_precision(s: &str) -> Result<Precision, String> {
     match s.parse::<Precision>()? {
@@ -206,10 +229,12 @@ pub struct ReshadeArgs {
     /// residual is upsampled to full resolution.
     #[arg(long, default_value_t = 1.0)]
     pub reshade_scale: f64,
-    /// Run the network for this many views and interpolate the residual for the others
-    /// (default: every view).
-    #[arg(long)]
-    pub key_views: Option<usize>,
+    /// Run the network for this many views (the outermost two among them) and blend the
+    /// residual of the others from the two key views beside them, or `all` to run it for
+    /// every view (several times slower; the blend costs nothing measurable on rendered
+    /// truth, docs/reshading.md).
+    #[arg(long, value_name = "N|all", default_value = "8", value_parser = parse_key_views)]
+    pub key_views: KeyViews,
     /// Views per decoder call.
     #[arg(long, default_value_t = 1)]
     pub reshade_batch: usize,
@@ -235,7 +260,7 @@ impl ReshadeArgs {
             precision: self.precision,
             engine: self.engine.clone(),
             scale: self.reshade_scale,
-            key_views: self.key_views,
+            key_views: self.key_views.0,
             batch: self.reshade_batch,
             parallel_views: self.parallel_views,
             threads: self.reshade_threads,

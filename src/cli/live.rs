@@ -82,8 +82,8 @@ younger than --depth-max-age-ms) and every view is relocated with it (--relocate
 
 Live views keep the camera's shading unless a reshading model is named (--model, or
 $RESHADER_MODEL; needs --depth network): unlike render, live does not fall back to
-models/reshade, because the shipped network takes about 0.1 s per view on a CPU, seconds
-per frame for a 48-view board. --key-views and --reshade-scale cut that cost.
+models/reshade, because the shipped network takes about 0.1 s per key view on a CPU (8 key
+views by default), most of a second per frame. --key-views and --reshade-scale cut that cost.
 
 Examples:
   reshader live --camera /dev/video0 --list-formats

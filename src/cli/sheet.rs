@@ -59,7 +59,7 @@ pub fn sheet(args: SheetArgs) -> Result<()> {
     {
         reshader::views::check_depthiness(d)?;
     }
-    let scene = args.scene.load()?;
+    let scene = args.scene.load(Some(board.view_size()))?;
     let reshader = args.scene.reshade.config().build()?;
     let relocator = args.relocate.config().build();
     let sheet = pipeline::sheet::outer_views(

@@ -77,7 +77,7 @@ pub fn reshade(args: SingleViewArgs) -> Result<()> {
     output::check_output_file(&args.out)?;
     args.scene.reshade.check_model()?;
     check_single_view_memory(&args.scene, true)?;
-    let scene = args.scene.load()?;
+    let scene = args.scene.load(None)?;
     let req = ViewRequest {
         scene: &scene,
         camera: args.camera,
@@ -98,7 +98,7 @@ pub fn view(args: ViewArgs) -> Result<()> {
         single.scene.reshade.check_model()?;
     }
     check_single_view_memory(&single.scene, !args.no_reshade)?;
-    let scene = single.scene.load()?;
+    let scene = single.scene.load(None)?;
     let req = ViewRequest {
         scene: &scene,
         camera: single.camera,

@@ -349,7 +349,8 @@ impl DepthEstimator {
         )
     }
 
-    /// Scene depth for the photo at `photo_path` (decoded upright as `photo`). In `Auto`,
+    /// Scene depth for the photo at `photo_path` (decoded upright as `photo`), at `size`
+    /// (the photo's, or the smaller size, same aspect, of the views it is for). In `Auto`,
     /// unreadable embedded depth is logged and recorded in the report, and the network is
     /// used instead; asked for explicitly, it is an error.
     ///
@@ -359,11 +360,12 @@ impl DepthEstimator {
         &self,
         photo_path: &Path,
         photo: &RgbImage,
+        size: [usize; 2],
         t: &mut Timings,
     ) -> Result<(DepthMap, StageReport), DepthNetError> {
         let started = std::time::Instant::now();
         let mut load_ms = 0.0;
-        let (map, mut report) = self.find(photo_path, photo, &mut load_ms)?;
+        let (map, mut report) = self.find(photo_path, photo, size, &mut load_ms)?;
         report.time_ms = started.elapsed().as_secs_f64() * 1e3 - load_ms;
         if load_ms > 0.0 {
             t.add("depth_model", load_ms);
@@ -376,11 +378,12 @@ impl DepthEstimator {
         &self,
         photo_path: &Path,
         photo: &RgbImage,
+        size: [usize; 2],
         load_ms: &mut f64,
     ) -> Result<(DepthMap, StageReport), DepthNetError> {
         let mut embedded_error = None;
         if self.source != DepthSource::Network {
-            match (self.embedded(photo_path, photo), self.source) {
+            match (self.embedded(photo_path, photo, size), self.source) {
                 (Ok(Some(result)), _) => {
                     log::info!(
                         "{}: using the depth embedded in the photo",
@@ -403,7 +406,7 @@ impl DepthEstimator {
             }
         }
         let net = self.loaded_net(load_ms)?;
-        let (map, mut report) = network_depth(&net, photo, &self.opts)?;
+        let (map, mut report) = network_depth(&net, photo, size, &self.opts)?;
         report.embedded_error = embedded_error;
         Ok((map, report))
     }
@@ -412,11 +415,12 @@ impl DepthEstimator {
         &self,
         photo_path: &Path,
         photo: &RgbImage,
+        size: [usize; 2],
     ) -> Result<Option<(DepthMap, StageReport)>, embedded_depth::EmbeddedError> {
         let Some(found) = embedded_depth::read(photo_path)? else {
             return Ok(None);
         };
-        embedded_scene_depth(&found, photo, &self.opts)
+        embedded_scene_depth(&found, photo, size, &self.opts)
             .map(Some)
             .map_err(|problem| embedded_depth::EmbeddedError::Unfit {
                 path: photo_path.into(),

@@ -466,7 +466,10 @@ fn options_table(
     let precision = config.precisions[0];
     let threaded: Arc<dyn Engine> = Arc::new(engine::tract::TractEngine::new(config.threads));
     let single: Arc<dyn Engine> = Arc::new(engine::tract::TractEngine::new(1));
-    let base = NetOptions::default();
+    let base = NetOptions {
+        key_views: None,
+        ..NetOptions::default()
+    };
     let variants: Vec<(&str, Arc<dyn Engine>, NetOptions)> = vec![
         (
             "plain: every view, full res, 2-thread kernels",

@@ -146,16 +146,7 @@ impl Fitted {
         width: u32,
         height: u32,
     ) -> Fitted {
-        let (pw, ph) = (image.width(), image.height());
-        let cover = (f64::from(width) / f64::from(pw)).max(f64::from(height) / f64::from(ph));
-        let (fw, fh) = if cover < 1.0 {
-            (
-                ((f64::from(pw) * cover).ceil() as u32).max(1),
-                ((f64::from(ph) * cover).ceil() as u32).max(1),
-            )
-        } else {
-            (pw, ph)
-        };
+        let (fw, fh) = Self::size((image.width(), image.height()), (width, height));
         let source = Intrinsics::from_hfov(fw, fh, hfov_deg);
         Fitted {
             image: image.resized(fw, fh),
@@ -164,15 +155,33 @@ impl Fitted {
             reference: source.cover(width, height),
         }
     }
+
+    /// The size a photo of `photo` pixels is fitted to for views of `views`: scaled
+    /// to just cover them when it is larger, else its own.
+    pub fn size((pw, ph): (u32, u32), (width, height): (u32, u32)) -> (u32, u32) {
+        let cover = (f64::from(width) / f64::from(pw)).max(f64::from(height) / f64::from(ph));
+        if cover < 1.0 {
+            (
+                ((f64::from(pw) * cover).ceil() as u32).max(1),
+                ((f64::from(ph) * cover).ceil() as u32).max(1),
+            )
+        } else {
+            (pw, ph)
+        }
+    }
 }
 
 impl Scene {
     /// Loads the photo (timed as `load`) and its depth: a file (also `load`) or the
-    /// estimator (`depth`, and `depth_model` when this call loads the network).
+    /// estimator (`depth`, and `depth_model` when this call loads the network). With
+    /// `views` (the size of the views the scene is for), estimated depth comes at the
+    /// size [`Fitted`] fits the photo to: no work is spent on, and no memory held for,
+    /// depth finer than the views can show.
     pub fn load(
         photo: &Path,
         depth: &SceneDepth,
         fov: Option<f64>,
+        views: Option<(u32, u32)>,
         t: &mut Timings,
     ) -> Result<Self, PipelineError> {
         let photo_path = photo;
@@ -189,7 +198,10 @@ impl Scene {
             }
             SceneDepth::Estimate(estimator) => {
                 let rgb = photo.image.to_rgb8();
-                let (map, report) = estimator.depth(photo_path, &rgb, t)?;
+                let full = (rgb.width(), rgb.height());
+                let (w, h) = views.map_or(full, |v| Fitted::size(full, v));
+                let (map, report) =
+                    estimator.depth(photo_path, &rgb, [w as usize, h as usize], t)?;
                 (map, DepthOrigin::Estimated(Box::new(report)))
             }
         };
@@ -305,8 +317,8 @@ pub fn render(
     let board = &opts.board;
     let progress = &opts.progress;
     progress.set_message("depth");
-    let scene = Scene::load(&opts.photo, &opts.depth, opts.fov, &mut t)?;
     let (vw, vh) = board.view_size();
+    let scene = Scene::load(&opts.photo, &opts.depth, opts.fov, Some((vw, vh)), &mut t)?;
     let fitted = t.time("fit", || scene.fitted(vw, vh));
     let BoardRig {
         rig,

@@ -523,6 +523,7 @@ mod tests {
         let mut config = crate::reshade::net::choice::ReshadeConfig {
             batch: 2,
             parallel_views: 3,
+            key_views: None,
             ..Default::default()
         };
         assert_eq!(reshaded_at_once(&config, 66), 6 + cores);

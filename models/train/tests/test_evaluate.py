@@ -174,3 +174,27 @@ def test_examples_command_writes_what_the_runtime_reads(tmp_path):
     mse = ((a - b)[valid] ** 2).mean()
     assert report["examples"][0]["psnr_input"] == pytest.approx(10 * math.log10(1 / mse), abs=1e-3)
     assert cli.main([*args, "--data", str(tmp_path / "nothing"), "--out", str(out)]) == 2
+
+
+def test_key_spacing_blends_two_key_views_as_the_runtime_does():
+    from dataclasses import replace
+
+    from reshader_train.evaluate import reshade, reshade_between_keys
+
+    torch.manual_seed(3)
+    image, disparity = 0.3 + 0.3 * torch.rand(3, 32, 32), torch.rand(1, 32, 32)
+    camera = torch.tensor([0.2, 0.05, 0.0])
+    paper = ReshadeNet(net_config("4,8,8,16,16,16")).eval()
+    torch.nn.init.normal_(paper.decoder.out.weight, std=0.02)
+    # Halfway between keys 0.3 apart along x: the mean of the two keys' views (no value
+    # here comes near a clamp), and not the view at the camera itself.
+    shifts = (torch.tensor([-0.15, 0.0, 0.0]), torch.tensor([0.15, 0.0, 0.0]))
+    keys = [reshade(paper, image, disparity, camera + d) for d in shifts]
+    blended = reshade_between_keys(paper, image, disparity, camera, 0.3)
+    assert torch.allclose(blended, (keys[0] + keys[1]) / 2, atol=1e-6)
+    direct = reshade(paper, image, disparity, camera)
+    near = reshade_between_keys(paper, image, disparity, camera, 0.01)
+    assert (blended - direct).abs().max() > 10 * (near - direct).abs().max() > 0
+    lobes = ReshadeNet(replace(net_config("4,8,8,16,16,16"), head="lobes")).eval()
+    with pytest.raises(ValueError, match="no key views"):
+        reshade_between_keys(lobes, image, disparity, camera, 0.1)

@@ -44,7 +44,8 @@ pub fn write_depth_file(
     check_depth_file(out)?;
     let image = crate::io::photo::load_rgb8(photo)?;
     let mut timings = crate::io::record::Timings::default();
-    let (map, report) = estimator.depth(photo, &image, &mut timings)?;
+    let size = super::photo_size(&image);
+    let (map, report) = estimator.depth(photo, &image, size, &mut timings)?;
     let bytes = map.encode(out)?;
     output::write_atomic(out, &bytes)?;
     Ok((map, report))

@@ -132,30 +132,45 @@ pub struct EmbeddedReport {
 }
 
 /// Scene depth for a photo from the network: estimate at the network's size, upsample
-/// the disparity to the photo, refine its edges with the photo, map it to scene depth
-/// (relative outputs through `opts.scale`; metric depth keeps its units).
+/// the disparity to `size` (the photo's, or the smaller size of the views it is for),
+/// refine its edges with the photo, map it to scene depth (relative outputs through
+/// `opts.scale`; metric depth keeps its units).
 pub fn network_depth(
     net: &DepthNet,
     photo: &RgbImage,
+    size: [usize; 2],
     opts: &StageOptions,
 ) -> Result<(DepthMap, StageReport), DepthNetError> {
     let started = std::time::Instant::now();
     let estimate = net.estimate(photo)?;
-    Ok(scene_depth(net, &estimate, photo, opts, started))
+    Ok(scene_depth(net, &estimate, photo, size, opts, started))
+}
+
+/// The size of `photo`, for the stage functions' `size`.
+pub fn photo_size(photo: &RgbImage) -> [usize; 2] {
+    [photo.width() as usize, photo.height() as usize]
 }
 
 /// The rest of [`network_depth`] after the network: `estimate` (`net`'s output for
-/// `photo`) upsampled, refined and scaled; the report's time counts from `started`.
+/// `photo`) upsampled to `size`, refined and scaled; the report's time counts from
+/// `started`.
 pub fn scene_depth(
     net: &DepthNet,
     estimate: &NetworkDepth,
     photo: &RgbImage,
+    size: [usize; 2],
     opts: &StageOptions,
     started: std::time::Instant,
 ) -> (DepthMap, StageReport) {
     let native = [estimate.map.width, estimate.map.height];
-    let (map, percentiles, refine) =
-        finish(&estimate.disparity(), native, estimate.kind, photo, opts);
+    let (map, percentiles, refine) = finish(
+        &estimate.disparity(),
+        native,
+        estimate.kind,
+        photo,
+        size,
+        opts,
+    );
     let m = net.manifest();
     let report = StageReport {
         source: "network",
@@ -184,10 +199,12 @@ pub fn scene_depth(
 }
 
 /// Scene depth from depth the photo carries (metric, kept in its units), upright as the
-/// photo is shown, fitted to the photo and refined like the network's.
+/// photo is shown, fitted to `size` (see [`network_depth`]) and refined like the
+/// network's.
 pub fn embedded_scene_depth(
     found: &EmbeddedDepth,
     photo: &RgbImage,
+    size: [usize; 2],
     opts: &StageOptions,
 ) -> Result<(DepthMap, StageReport), String> {
     let started = std::time::Instant::now();
@@ -205,7 +222,7 @@ pub fn embedded_scene_depth(
     }
     let disparity: Vec<f32> = upright.values.iter().map(|&z| 1.0 / z).collect();
     let native = [upright.width, upright.height];
-    let (map, _, refine) = finish(&disparity, native, OutputKind::Depth, photo, opts);
+    let (map, _, refine) = finish(&disparity, native, OutputKind::Depth, photo, size, opts);
     let report = StageReport {
         source: "embedded",
         model: None,
@@ -234,18 +251,18 @@ pub fn embedded_scene_depth(
 
 type Finished = (DepthMap, Option<[f32; 2]>, Option<RefineOptions>);
 
-/// Upsamples disparity to the photo (refining it on the way) and converts it to depth.
+/// Upsamples disparity to `size` (refining it on the way) and converts it to depth.
 fn finish(
     disparity: &[f32],
     [w, h]: [usize; 2],
     kind: OutputKind,
     photo: &RgbImage,
+    [pw, ph]: [usize; 2],
     opts: &StageOptions,
 ) -> Finished {
-    let (pw, ph) = (photo.width() as usize, photo.height() as usize);
     let (up, refine) = match opts.refine {
         Some(r) => {
-            let (up, r) = refined(disparity, (w, h), photo, r);
+            let (up, r) = refined(disparity, (w, h), photo, (pw, ph), r);
             (up, Some(r))
         }
         None => (resample::resize(disparity, w, h, pw, ph), None),
@@ -258,21 +275,22 @@ fn finish(
     (map, Some(p), refine)
 }
 
-/// Refines at a working size of at most `max_side` (the median's cost is per pixel),
-/// then upsamples to the photo: the remaining blur is at most photo/working pixels.
+/// Refines at `(pw, ph)` or, when that is larger, at a working size of at most
+/// `max_side` (the median's cost is per pixel), then upsamples to `(pw, ph)`: the
+/// remaining blur is at most that many pixels over the working size's.
 fn refined(
     disparity: &[f32],
     (w, h): (usize, usize),
     photo: &RgbImage,
+    (pw, ph): (usize, usize),
     r: RefineOptions,
 ) -> (Vec<f32>, RefineOptions) {
-    let (pw, ph) = (photo.width() as usize, photo.height() as usize);
     let k = (r.max_side.max(1) as f64 / pw.max(ph) as f64).min(1.0);
     let (ww, wh) = (
         ((pw as f64 * k).round() as usize).max(1),
         ((ph as f64 * k).round() as usize).max(1),
     );
-    let guide = if (ww, wh) == (pw, ph) {
+    let guide = if (ww, wh) == (photo.width() as usize, photo.height() as usize) {
         photo.clone()
     } else {
         image::imageops::resize(photo, ww as u32, wh as u32, FilterType::Triangle)

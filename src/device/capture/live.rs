@@ -239,7 +239,8 @@ impl DepthState<'_> {
             .as_ref()
             .is_none_or(|(_, at)| at.elapsed() > self.live.max_age);
         if stale {
-            let (map, _) = depth_net::network_depth(&self.live.net, work, &self.live.opts)?;
+            let size = depth_net::photo_size(work);
+            let (map, _) = depth_net::network_depth(&self.live.net, work, size, &self.live.opts)?;
             self.latest = Some((map, Instant::now()));
         }
         Ok(stale)

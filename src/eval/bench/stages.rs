@@ -113,16 +113,19 @@ fn run_once(ctx: &Context, photo: &Path, board: &Board) -> Result<Run, BenchErro
     })?;
     let depth_input = ctx.depth.network_size(rgb.width(), rgb.height())?;
     let estimate = timed(&mut t, "depth", || ctx.depth.estimate(&rgb))?;
+    let (vw, vh) = board.view_size();
+    // As in `render`: the depth comes at the size the photo is fitted to for the views.
+    let (dw, dh) = Fitted::size((rgb.width(), rgb.height()), (vw, vh));
     let (depth, _) = timed(&mut t, "depth refinement", || {
         scene_depth(
             &ctx.depth,
             &estimate,
             &rgb,
+            [dw as usize, dh as usize],
             &StageOptions::default(),
             Instant::now(),
         )
     });
-    let (vw, vh) = board.view_size();
     let fitted = timed(&mut t, "fit to view size", || {
         Fitted::new(&photo.image, photo.hfov_deg, &depth, vw, vh)
     });
@@ -242,8 +245,12 @@ fn detail(ctx: &Context, stage: &str, board: &Board, run: &Run) -> String {
             run.depth_input.0,
             run.depth_input.1
         ),
-        "depth refinement" => "upsample to the photo, edge-aware refinement, scene scaling".into(),
-        "fit to view size" => format!("photo and depth resized to {ww}x{wh}"),
+        "depth refinement" => {
+            "upsample to the working size, edge-aware refinement, scene scaling".into()
+        }
+        "fit to view size" => {
+            format!("photo resized to {ww}x{wh} (the depth is already at that size)")
+        }
         "LDI build + inpainting" => format!(
             "once per photo at {ww}x{wh} by the runtime's relocator: {}",
             ctx.relocator.description()

@@ -3,7 +3,7 @@
 //! the true depth: relative depth has an unknown scale and shift in disparity, and the
 //! evaluation measures edges and uncovered regions, not the scale.
 
-use crate::depth::net::{network_depth, DepthNet, DepthNetError, StageOptions};
+use crate::depth::net::{network_depth, photo_size, DepthNet, DepthNetError, StageOptions};
 use crate::depth::DepthMap;
 use crate::engine::manifest::Precision;
 use crate::io::photo::SrgbImage;
@@ -39,7 +39,8 @@ pub fn estimate(
     truth: &DepthMap,
     valid: &[bool],
 ) -> Result<DepthMap, DepthNetError> {
-    let (estimated, _) = network_depth(net, &photo.to_rgb8(), &StageOptions::default())?;
+    let rgb = photo.to_rgb8();
+    let (estimated, _) = network_depth(net, &rgb, photo_size(&rgb), &StageOptions::default())?;
     Ok(aligned(&estimated, truth, valid))
 }
 

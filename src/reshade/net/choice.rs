@@ -45,7 +45,7 @@ impl Default for ReshadeConfig {
             precision: None,
             engine: "tract".into(),
             scale: 1.0,
-            key_views: None,
+            key_views: Some(super::DEFAULT_KEY_VIEWS),
             batch: 1,
             parallel_views: 1,
             threads: None,

@@ -390,7 +390,7 @@ impl LobeReshader {
         };
         let spec = manifest::lobe_spec(&model.manifest_path, &model.manifest)?;
         let defaults = NetOptions::default();
-        if options.key_views.is_some()
+        if options.key_views != defaults.key_views
             || options.batch != defaults.batch
             || options.parallel_views != defaults.parallel_views
         {

@@ -104,24 +104,55 @@ def reshade(
 
 
 @torch.no_grad()
-def reshade_between_keys(
+def residual_at(
     net: ReshadeNet,
     image: torch.Tensor,
     disparity: torch.Tensor,
     camera: torch.Tensor,
-    spacing: float,
+    scale: float = 1.0,
 ) -> torch.Tensor:
-    """The runtime's key views (`render --key-views`) at their worst: the view at `camera`
-    made from the residuals of two key views `spacing` apart along x, halfway between them
-    (where a linear blend strays furthest from a residual that is not linear in the
-    camera). The residual head only: the lobe heads' closed form needs no key views."""
-    if not net.cfg.takes_camera:
-        raise ValueError(f"the {net.cfg.head} head has no key views (its views are a closed form)")
+    """The residual head's change (output − input, unclamped) for `camera`, with the
+    network run at `scale` of the image's size as `render --reshade-scale` runs it: inputs
+    area-averaged down, the residual bilinear back up."""
     h, w = image.shape[-2:]
-    step = torch.tensor([spacing / 2, 0.0, 0.0], dtype=camera.dtype)
-    img, disp = pad_to_multiple(image[None]), pad_to_multiple(disparity[None])
-    keys = [net(img, disp, (camera + sign * step)[None], None) for sign in (-1.0, 1.0)]
-    return ((keys[0] + keys[1]) / 2)[0, :, :h, :w].clamp(0.0, 1.0)
+    size = (max(1, round(h * scale)), max(1, round(w * scale)))
+    img, disp = image[None], disparity[None]
+    if size != (h, w):
+        img = F.interpolate(img, size=size, mode="area")
+        disp = F.interpolate(disp, size=size, mode="area")
+    out = net(pad_to_multiple(img), pad_to_multiple(disp), camera[None], None)
+    residual = out[:, :, : size[0], : size[1]] - img
+    if size != (h, w):
+        residual = F.interpolate(residual, size=(h, w), mode="bilinear", align_corners=False)
+    return residual[0]
+
+
+@torch.no_grad()
+def reshade_like_runtime(
+    net: ReshadeNet,
+    image: torch.Tensor,
+    disparity: torch.Tensor,
+    camera: torch.Tensor,
+    key_spacing: float = 0.0,
+    scale: float = 1.0,
+) -> torch.Tensor:
+    """The view at `camera` as the runtime's per-view cost options make it: the network at
+    `scale` (`render --reshade-scale`) and, with `key_spacing`, the residual blended halfway
+    between two key views that far apart along x (`render --key-views` at its worst: where
+    a linear blend strays furthest from a residual that is not linear in the camera). The
+    residual head only: the lobe heads' closed form has neither option."""
+    if not net.cfg.takes_camera:
+        raise ValueError(
+            f"the {net.cfg.head} head has no key views or reshade scale (its views are a "
+            "closed form)"
+        )
+    if key_spacing > 0:
+        step = torch.tensor([key_spacing / 2, 0.0, 0.0], dtype=camera.dtype)
+        keys = [residual_at(net, image, disparity, camera + d * step, scale) for d in (-1, 1)]
+        residual = (keys[0] + keys[1]) / 2
+    else:
+        residual = residual_at(net, image, disparity, camera, scale)
+    return (image + residual).clamp(0.0, 1.0)
 
 
 def read_checkpoint(path: Path, device: torch.device | str = "cpu") -> dict:
@@ -193,13 +224,16 @@ def evaluate_folder(
     lpips_fn=None,
     target: int = 0,
     key_spacing: float = 0.0,
+    scale: float = 1.0,
 ) -> list[dict]:
     rows = []
     for folder in list_examples(root)[:limit]:
         ex = load_example(folder)
         s = target_sample(ex, target)
-        if key_spacing > 0:
-            ours = reshade_between_keys(net, s["image"], s["disparity"], s["camera"], key_spacing)
+        if key_spacing > 0 or scale != 1.0:
+            ours = reshade_like_runtime(
+                net, s["image"], s["disparity"], s["camera"], key_spacing, scale
+            )
         else:
             ours = reshade(net, s["image"], s["disparity"], s["camera"], s["rays"])
         row = {"split": root.name, "scene": ex.scene, "example": ex.name}
@@ -337,6 +371,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "between two key views this far apart along x (training units; a board's cone spans "
         "0.6, so K key views are 0.6/(K-1) apart). 0 (default): the network at every view",
     )
+    p.add_argument(
+        "--scale",
+        type=float,
+        default=1.0,
+        help="run the network at this fraction of each image's size and upsample its "
+        "residual, as `render --reshade-scale` does (default 1)",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -351,7 +392,9 @@ def run(args: argparse.Namespace) -> int:
     rows = []
     try:
         for root in args.data:
-            rows += evaluate_folder(net, root, args.limit, lpips_fn, args.target, args.key_spacing)
+            rows += evaluate_folder(
+                net, root, args.limit, lpips_fn, args.target, args.key_spacing, args.scale
+            )
     except ValueError as err:
         print(f"evaluate: {err}", file=sys.stderr)
         return 2
@@ -367,6 +410,7 @@ def run(args: argparse.Namespace) -> int:
             "exposure": EVAL_EXPOSURE,
             "gamma": EVAL_GAMMA,
             "key_spacing": args.key_spacing,
+            "scale": args.scale,
             "lpips": lpips_note or "available",
             "splits": summary,
             "examples": [{k: v for k, v in r.items() if not k.startswith("_")} for r in rows],

@@ -179,7 +179,7 @@ def test_examples_command_writes_what_the_runtime_reads(tmp_path):
 def test_key_spacing_blends_two_key_views_as_the_runtime_does():
     from dataclasses import replace
 
-    from reshader_train.evaluate import reshade, reshade_between_keys
+    from reshader_train.evaluate import reshade, reshade_like_runtime
 
     torch.manual_seed(3)
     image, disparity = 0.3 + 0.3 * torch.rand(3, 32, 32), torch.rand(1, 32, 32)
@@ -190,11 +190,20 @@ def test_key_spacing_blends_two_key_views_as_the_runtime_does():
     # here comes near a clamp), and not the view at the camera itself.
     shifts = (torch.tensor([-0.15, 0.0, 0.0]), torch.tensor([0.15, 0.0, 0.0]))
     keys = [reshade(paper, image, disparity, camera + d) for d in shifts]
-    blended = reshade_between_keys(paper, image, disparity, camera, 0.3)
+    blended = reshade_like_runtime(paper, image, disparity, camera, 0.3)
     assert torch.allclose(blended, (keys[0] + keys[1]) / 2, atol=1e-6)
     direct = reshade(paper, image, disparity, camera)
-    near = reshade_between_keys(paper, image, disparity, camera, 0.01)
+    near = reshade_like_runtime(paper, image, disparity, camera, 0.01)
     assert (blended - direct).abs().max() > 10 * (near - direct).abs().max() > 0
     lobes = ReshadeNet(replace(net_config("4,8,8,16,16,16"), head="lobes")).eval()
+    # At scale 1 nothing is resampled. At half scale only the residual is resampled: a
+    # constant one (a last layer of bias alone) comes back exactly, on the full image.
+    assert torch.allclose(reshade_like_runtime(paper, image, disparity, camera), direct, atol=1e-6)
+    torch.nn.init.zeros_(paper.decoder.out.weight)
+    torch.nn.init.constant_(paper.decoder.out.bias, 0.05)
+    flat = reshade(paper, image, disparity, camera)
+    assert not torch.allclose(flat, image, atol=1e-3)
+    half = reshade_like_runtime(paper, image, disparity, camera, scale=0.5)
+    assert torch.allclose(half, flat, atol=1e-5)
     with pytest.raises(ValueError, match="no key views"):
-        reshade_between_keys(lobes, image, disparity, camera, 0.1)
+        reshade_like_runtime(lobes, image, disparity, camera, 0.1)

@@ -376,3 +376,54 @@ fn targets_sit_beside_the_figures_that_measure_them() {
     assert!(md.contains("| not measured | – |"), "{md}");
     assert!(r.to_markdown().contains("## Targets"));
 }
+
+#[test]
+fn a_readme_block_gets_a_saved_report_s_targets_and_nothing_else_changes() {
+    use reshader::eval::bench::readme;
+    let dir = tempfile::tempdir().unwrap();
+    let mut big = case("looking-glass-portrait", 15.0, true);
+    big.photo = "synthetic 4000x3000".into();
+    big.photo_size = [4000, 3000];
+    let saved = dir.path().join("saved.json");
+    std::fs::write(&saved, report(vec![big]).to_json()).unwrap();
+    let path = dir.path().join("README.md");
+    let before = "# title\n\ntext\n\n<!-- bench-targets: generated -->\nold figures\n<!-- /bench-targets -->\n\nmore\n";
+    std::fs::write(&path, before).unwrap();
+    let args = BenchConfig {
+        from: Some(saved.clone()),
+        readme: Some(path.clone()),
+        ..BenchConfig::default()
+    };
+    // Measures nothing: the saved report is the one written.
+    bench::run_and_write(&args, "reshader bench --from saved.json").unwrap();
+    let after = std::fs::read_to_string(&path).unwrap();
+    assert!(after.starts_with("# title\n\ntext\n\n<!-- bench-targets: generated -->\n"));
+    assert!(
+        after.ends_with("<!-- /bench-targets -->\n\nmore\n"),
+        "{after}"
+    );
+    assert!(!after.contains("old figures"));
+    assert!(
+        after.contains(&format!("[`{}`]", saved.display())),
+        "{after}"
+    );
+    assert!(
+        after.contains(
+            "| 12 MP photo → Portrait (48 views), end to end | ≤ 2000 ms | 1500 ms | yes |"
+        ),
+        "{after}"
+    );
+    // Writing again changes nothing.
+    bench::run_and_write(&args, "again").unwrap();
+    assert_eq!(std::fs::read_to_string(&path).unwrap(), after);
+
+    // Without the closing marker: an error naming the file, and the file as it was.
+    let broken = "# title\n<!-- bench-targets -->\nno end\n";
+    std::fs::write(&path, broken).unwrap();
+    let err = bench::run_and_write(&args, "x").unwrap_err().to_string();
+    assert!(
+        err.contains("README.md") && err.contains(readme::END),
+        "{err}"
+    );
+    assert_eq!(std::fs::read_to_string(&path).unwrap(), broken);
+}

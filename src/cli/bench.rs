@@ -20,6 +20,8 @@ times are not representative.
 Examples:
   cargo run --release -- bench --out bench.md --out bench.json
   cargo run --release -- bench --boards looking-glass-portrait --compare bench.json
+  # the README's targets table from a saved report, measuring nothing
+  reshader bench --from bench/results/bench-2026-12-04b.json --readme README.md
 
 The reshading model timed is --model, else models/reshade (or $RESHADER_MODEL) when it
 has the --precision asked for, else an untrained export of the shipped architecture
@@ -59,6 +61,15 @@ pub struct BenchArgs {
     /// A previous run's JSON: print the change of every stage against it.
     #[arg(long)]
     pub compare: Option<PathBuf>,
+    /// Measure nothing: take this saved JSON report and write --out, --compare and
+    /// --readme from it.
+    #[arg(long, value_name = "REPORT.json")]
+    pub from: Option<PathBuf>,
+    /// Write the report's targets table into this Markdown file (the README's headline
+    /// figures), between a line starting `<!-- bench-targets` and a line
+    /// `<!-- /bench-targets -->`.
+    #[arg(long, value_name = "FILE.md")]
+    pub readme: Option<PathBuf>,
     /// Skip the onnxruntime peer.
     #[arg(long)]
     pub no_peer: bool,
@@ -95,6 +106,8 @@ impl BenchArgs {
             threads: self.threads,
             out: self.out.clone(),
             compare: self.compare.clone(),
+            from: self.from.clone(),
+            readme: self.readme.clone(),
             no_peer: self.no_peer,
             no_naive: self.no_naive,
             naive_views: self.naive_views,

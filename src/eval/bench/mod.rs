@@ -8,6 +8,7 @@
 mod compare;
 mod models;
 pub mod peer;
+pub mod readme;
 pub mod report;
 mod stages;
 pub mod targets;
@@ -72,6 +73,8 @@ pub enum BenchError {
         path: PathBuf,
         source: std::io::Error,
     },
+    #[error(transparent)]
+    Readme(#[from] readme::ReadmeError),
     #[error("{0}")]
     Usage(String),
 }
@@ -107,6 +110,10 @@ pub struct BenchConfig {
     pub out: Vec<PathBuf>,
     /// A previous run's JSON to compare every stage with.
     pub compare: Option<PathBuf>,
+    /// Instead of measuring, take this saved JSON report (for --out, --compare, --readme).
+    pub from: Option<PathBuf>,
+    /// A Markdown file whose targets block (see [`readme`]) gets this report's targets.
+    pub readme: Option<PathBuf>,
     pub no_peer: bool,
     pub no_naive: bool,
     /// Views the naive configuration really runs per board (the rest is extrapolated).
@@ -131,6 +138,8 @@ impl Default for BenchConfig {
             threads: 2,
             out: Vec::new(),
             compare: None,
+            from: None,
+            readme: None,
             no_peer: false,
             no_naive: false,
             naive_views: 2,
@@ -179,7 +188,10 @@ impl BenchConfig {
 pub fn run_and_write(args: &BenchConfig, command: &str) -> Result<(Report, String), BenchError> {
     args.check()?;
     let previous = args.compare.as_deref().map(Report::load).transpose()?;
-    let report = run(args, command)?;
+    let report = match &args.from {
+        Some(saved) => Report::load(saved)?,
+        None => run(args, command)?,
+    };
     let markdown = report.to_markdown();
     let mut shown = markdown.clone();
     let comparison = previous.map(|p| report.compare(&p));
@@ -199,7 +211,28 @@ pub fn run_and_write(args: &BenchConfig, command: &str) -> Result<(Report, Strin
         };
         crate::io::output::write_atomic(out, text.as_bytes())?;
     }
+    if let Some(readme) = &args.readme {
+        readme::update(readme, &report, &report_source(args))?;
+    }
     Ok((report, shown))
+}
+
+/// Where a README's targets block says its figures come from: the saved report read or
+/// written, else the run itself.
+fn report_source(args: &BenchConfig) -> String {
+    let json = args
+        .from
+        .iter()
+        .chain(
+            args.out
+                .iter()
+                .filter(|o| o.extension().is_some_and(|e| e == "json")),
+        )
+        .next();
+    match json {
+        Some(path) => format!("[`{0}`]({0})", path.display()),
+        None => "a run whose report was not saved".into(),
+    }
 }
 
 /// The reshading model timed: either head, as `render` would load it.

@@ -42,6 +42,11 @@ COMMANDS = [
         "reshader_train.teacher",
         "a lobe head's fields fitted to every camera of each example, as targets for train",
     ),
+    (
+        "teacher-check",
+        "reshader_train.teacher_check",
+        "where and how much a taught lobes-slide network slides, against its teacher's fields",
+    ),
     ("evaluate", "reshader_train.evaluate", "PSNR/SSIM of input vs reshaded on held-out data"),
     ("export", "reshader_train.export", "ONNX models (fp32/fp16/int8, single/split) + manifests"),
     ("quantize", "reshader_train.quantize", "quantisation-aware int8 fine-tuning of a checkpoint"),

@@ -1,5 +1,6 @@
 import csv
 import json
+import math
 
 import numpy as np
 import pytest
@@ -169,3 +170,55 @@ def test_a_sparse_fit_puts_less_light_in_the_fields(analytic):
         for w in (0.0, 1.0)
     ]
     assert penalties[1] < 0.5 * penalties[0]
+
+
+def test_selection_says_where_and_how_much():
+    from reshader_train.teacher_check import selection
+
+    teacher = np.zeros((10, 10))
+    teacher[:, :1] = 0.5  # a tenth of the pixels slide
+    same = selection(teacher * 0.1, teacher)
+    assert same["correlation"] == pytest.approx(1.0)
+    assert same["teacher_share_in_top_tenth"] == pytest.approx(1.0)
+    assert same["network_mean"] == pytest.approx(0.1 * same["teacher_mean"])
+    elsewhere = np.zeros((10, 10))
+    elsewhere[:, 5:6] = 0.5
+    away = selection(elsewhere, teacher)
+    assert away["teacher_share_in_top_tenth"] == 0.0 and away["correlation"] < 0
+    # A network that slides the same everywhere picks nothing out.
+    flat = selection(np.full((10, 10), 0.05), teacher)
+    assert flat["correlation"] == 0.0 and flat["teacher_share_in_top_tenth"] == pytest.approx(0.1)
+
+
+def test_teacher_check_compares_a_sliding_network_with_its_teacher(analytic, tmp_path, capsys):
+    from reshader_train.model import ReshadeNet, net_config
+
+    data, _ = analytic
+    # A teacher that slides the left third of every example.
+    fields = tmp_path / "fields"
+    fields.mkdir()
+    (fields / "teacher.json").write_text(json.dumps({"head": "lobes-slide", "lobes": 1}))
+    for ex in sorted(p for p in data.iterdir() if (p / "meta.json").exists()):
+        f = np.zeros((11, 32, 32), np.float16)
+        f[7:10, :, :10] = 0.3
+        np.save(fields / f"{ex.name}.npy", f)
+    from dataclasses import replace
+
+    cfg = replace(net_config(TINY), head="lobes-slide", lobes=1)
+    ckpt = tmp_path / "slide.pt"
+    torch.save({"model": ReshadeNet(cfg).state_dict(), "net_config": cfg.to_json()}, ckpt)
+    out = tmp_path / "check.json"
+    argv = ["teacher-check", "--checkpoint", str(ckpt), "--data", str(data), "--teacher",
+            str(fields), "--json", str(out)]  # fmt: skip
+    assert main(argv) == 0
+    assert "3 examples with a sliding teacher" in capsys.readouterr().out
+    report = json.loads(out.read_text())
+    assert len(report["examples"]) == 3
+    assert report["means"]["teacher_mean"] == pytest.approx(0.3 * 10 / 32, rel=1e-3)
+    # An untrained layer is the same small fraction everywhere.
+    assert report["means"]["network_mean"] == pytest.approx(1 / (1 + math.exp(3)), rel=0.05)
+    residual = tmp_path / "residual.pt"
+    cfg = net_config(TINY)
+    torch.save({"model": ReshadeNet(cfg).state_dict(), "net_config": cfg.to_json()}, residual)
+    assert main([*argv[:2], str(residual), *argv[3:]]) == 2
+    assert "has no sliding layer" in capsys.readouterr().err

@@ -426,4 +426,14 @@ fn a_readme_block_gets_a_saved_report_s_targets_and_nothing_else_changes() {
         "{err}"
     );
     assert_eq!(std::fs::read_to_string(&path).unwrap(), broken);
+    // Found before anything is measured: a run with that file (and a photo that would
+    // fail the measuring) names the README.
+    let run = BenchConfig {
+        readme: Some(path.clone()),
+        photo: dir.path().join("no-such-photo.jpg"),
+        ..tiny_args()
+    };
+    let err = bench::run_and_write(&run, "x").unwrap_err().to_string();
+    assert!(err.contains("no block to write the targets into"), "{err}");
+    assert_eq!(std::fs::read_to_string(&path).unwrap(), broken);
 }

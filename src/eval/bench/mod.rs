@@ -187,6 +187,9 @@ impl BenchConfig {
 /// (the Markdown report, and the comparison with `--compare`'s run).
 pub fn run_and_write(args: &BenchConfig, command: &str) -> Result<(Report, String), BenchError> {
     args.check()?;
+    if let Some(readme) = &args.readme {
+        readme::check(readme)?;
+    }
     let previous = args.compare.as_deref().map(Report::load).transpose()?;
     let report = match &args.from {
         Some(saved) => Report::load(saved)?,

@@ -118,9 +118,11 @@ pub enum DepthOrigin {
     Estimated(Box<StageReport>),
 }
 
-/// A photo with its depth at the photo's resolution.
+/// A photo with its depth.
 pub struct Scene {
     pub photo: Photo,
+    /// At the photo's resolution, or, when estimated for views of a known size, at the
+    /// size the photo is fitted to for them (see [`Scene::load`]).
     pub depth: DepthMap,
     pub depth_origin: DepthOrigin,
 }

@@ -110,10 +110,24 @@ def residual_at(
     disparity: torch.Tensor,
     camera: torch.Tensor,
     scale: float = 1.0,
+    transpose: bool = False,
 ) -> torch.Tensor:
     """The residual head's change (output − input, unclamped) for `camera`, with the
     network run at `scale` of the image's size as `render --reshade-scale` runs it: inputs
-    area-averaged down, the residual bilinear back up."""
+    area-averaged down, the residual bilinear back up. `transpose` runs it on the image
+    turned about its diagonal (rows for columns, the camera's x and y swapped) and turns the
+    residual back: the same view if the network were symmetric under the transpose, which
+    training with the eight symmetries only approximates (a runtime could then always run
+    the network on the orientation tract runs fastest)."""
+    if transpose:
+        flipped = residual_at(
+            net,
+            image.transpose(-1, -2),
+            disparity.transpose(-1, -2),
+            camera[[1, 0, 2]],
+            scale,
+        )
+        return flipped.transpose(-1, -2)
     h, w = image.shape[-2:]
     size = (max(1, round(h * scale)), max(1, round(w * scale)))
     img, disp = image[None], disparity[None]
@@ -135,6 +149,7 @@ def reshade_like_runtime(
     camera: torch.Tensor,
     key_spacing: float = 0.0,
     scale: float = 1.0,
+    transpose: bool = False,
 ) -> torch.Tensor:
     """The view at `camera` as the runtime's per-view cost options make it: the network at
     `scale` (`render --reshade-scale`) and, with `key_spacing`, the residual blended halfway
@@ -148,10 +163,12 @@ def reshade_like_runtime(
         )
     if key_spacing > 0:
         step = torch.tensor([key_spacing / 2, 0.0, 0.0], dtype=camera.dtype)
-        keys = [residual_at(net, image, disparity, camera + d * step, scale) for d in (-1, 1)]
+        keys = [
+            residual_at(net, image, disparity, camera + d * step, scale, transpose) for d in (-1, 1)
+        ]
         residual = (keys[0] + keys[1]) / 2
     else:
-        residual = residual_at(net, image, disparity, camera, scale)
+        residual = residual_at(net, image, disparity, camera, scale, transpose)
     return (image + residual).clamp(0.0, 1.0)
 
 
@@ -225,14 +242,15 @@ def evaluate_folder(
     target: int = 0,
     key_spacing: float = 0.0,
     scale: float = 1.0,
+    transpose: bool = False,
 ) -> list[dict]:
     rows = []
     for folder in list_examples(root)[:limit]:
         ex = load_example(folder)
         s = target_sample(ex, target)
-        if key_spacing > 0 or scale != 1.0:
+        if key_spacing > 0 or scale != 1.0 or transpose:
             ours = reshade_like_runtime(
-                net, s["image"], s["disparity"], s["camera"], key_spacing, scale
+                net, s["image"], s["disparity"], s["camera"], key_spacing, scale, transpose
             )
         else:
             ours = reshade(net, s["image"], s["disparity"], s["camera"], s["rays"])
@@ -378,6 +396,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="run the network at this fraction of each image's size and upsample its "
         "residual, as `render --reshade-scale` does (default 1)",
     )
+    p.add_argument(
+        "--transpose",
+        action="store_true",
+        help="run the network on each image turned about its diagonal (camera x and y "
+        "swapped) and turn its change back: what running it in another orientation costs",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -393,7 +417,14 @@ def run(args: argparse.Namespace) -> int:
     try:
         for root in args.data:
             rows += evaluate_folder(
-                net, root, args.limit, lpips_fn, args.target, args.key_spacing, args.scale
+                net,
+                root,
+                args.limit,
+                lpips_fn,
+                args.target,
+                args.key_spacing,
+                args.scale,
+                args.transpose,
             )
     except ValueError as err:
         print(f"evaluate: {err}", file=sys.stderr)
@@ -411,6 +442,7 @@ def run(args: argparse.Namespace) -> int:
             "gamma": EVAL_GAMMA,
             "key_spacing": args.key_spacing,
             "scale": args.scale,
+            "transpose": args.transpose,
             "lpips": lpips_note or "available",
             "splits": summary,
             "examples": [{k: v for k, v in r.items() if not k.startswith("_")} for r in rows],

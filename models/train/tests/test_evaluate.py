@@ -207,3 +207,21 @@ def test_key_spacing_blends_two_key_views_as_the_runtime_does():
     assert torch.allclose(half, flat, atol=1e-5)
     with pytest.raises(ValueError, match="no key views"):
         reshade_like_runtime(lobes, image, disparity, camera, 0.1)
+
+
+def test_transpose_runs_the_network_turned_about_the_diagonal():
+    from reshader_train.evaluate import reshade, reshade_like_runtime
+
+    torch.manual_seed(4)
+    image, disparity = 0.3 + 0.3 * torch.rand(3, 32, 64), torch.rand(1, 32, 64)
+    camera = torch.tensor([0.2, -0.1, 0.05])
+    net = ReshadeNet(net_config("4,8,8,16,16,16")).eval()
+    torch.nn.init.normal_(net.decoder.out.weight, std=0.02)
+    turned = reshade_like_runtime(net, image, disparity, camera, transpose=True)
+    assert turned.shape == image.shape
+    by_hand = reshade(net, image.mT, disparity.mT, camera[[1, 0, 2]]).mT
+    assert torch.allclose(turned, by_hand, atol=1e-6)
+    # The camera turns with the image: x and y swapped, not kept.
+    unswapped = reshade(net, image.mT, disparity.mT, camera).mT
+    assert (turned - unswapped).abs().max() > 1e-4
+    assert (turned - reshade(net, image, disparity, camera)).abs().max() > 1e-4

@@ -189,12 +189,14 @@ fn fitted_pixels((pw, ph): (u32, u32), (vw, vh): (u32, u32)) -> u64 {
 /// documented factor ([`factors`]) times its pixels. The peak is the larger of two
 /// moments. Loading: the reshading network is loaded, the photo decoded, and the depth
 /// network loaded, which tract needs far more memory for while it optimises the graph
-/// than afterwards. Running: the photo, the fitted photo and the networks are counted
-/// throughout (`render` lets the photo go once it is fitted; the estimate errs high), with the larger of relocating the views (the LDI, the reshaded colours of
-/// the views in flight, the finished views, the rendering scratch of one view per core)
-/// and writing the products (the views and the larger of the quilt and the panel, made
-/// one after the other). [`factors::SLACK_PERCENT`] is added. Measured against the peak memory of
-/// nine renders (photos of 0.1 to 12 megapixels, four boards, with and without the
+/// than afterwards. Running: the photo (with a depth map of its size), the fitted photo
+/// and the networks are counted throughout, although `render` lets the photo go once it
+/// is fitted and estimates depth at the fitted size only: the estimate errs high. Added
+/// to them, the larger of relocating the views (the LDI, the reshaded colours of the
+/// views in flight, the finished views, the rendering scratch of one view per core) and
+/// writing the products (the views and the larger of the quilt and the panel, made one
+/// after the other). [`factors::SLACK_PERCENT`] is added. Measured against the peak
+/// memory of nine renders (photos of 0.1 to 12 megapixels, four boards, with and without the
 /// networks), it lies 1.06x to 1.47x above it, and each passes with --max-memory at its
 /// estimate unless the per-input check (a quarter of the ceiling for the photo) refuses
 /// it first.

@@ -45,9 +45,9 @@ pub fn block(report: &Report, source: &str) -> String {
 /// `text` with the block between the markers replaced by `contents`, or None when it has
 /// no such block.
 pub fn replace_block(text: &str, contents: &str) -> Option<String> {
-    let start = text.lines().position(|l| l.starts_with(START))?;
-    let end = start + text.lines().skip(start).position(|l| l.trim() == END)?;
     let lines: Vec<&str> = text.lines().collect();
+    let start = lines.iter().position(|l| l.starts_with(START))?;
+    let end = start + lines[start..].iter().position(|l| l.trim() == END)?;
     let mut out = String::new();
     for line in &lines[..=start] {
         out.push_str(line);

@@ -18,7 +18,7 @@ from __future__ import annotations
 import json
 import math
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -112,22 +112,56 @@ class Target:
 class FieldTargets:
     """A lobe head's fields fitted to an example (`reshader-train teacher`): per pixel the
     LobeField layout, `lobes` lobes first (their axes are vectors in the camera frame, which
-    the flips and the transpose turn as they turn the rays), then the head's scalars."""
+    the flips and the transpose turn as they turn the rays), then the head's scalars.
+
+    `hdr`: fields the renderer knows (`teacher --source renderer`), whose amplitudes are
+    HDR radiance and whose sliding fraction is the linear share of the light; a sample
+    puts them in its own tone mapping (`tone_mapped`)."""
 
     fields: np.ndarray  # (H, W, C) float16
     lobes: int
+    hdr: bool = False
 
     def flipped(self, axis: int) -> FieldTargets:
         """Mirrored along image axis 0 (rows: y) or 1 (columns: x); that axis component of
         every lobe axis changes sign."""
         f = np.flip(self.fields, axis).copy()
         f[..., [7 * j + 1 - axis for j in range(self.lobes)]] *= -1
-        return FieldTargets(f, self.lobes)
+        return replace(self, fields=f)
 
     def transposed(self) -> FieldTargets:
         f = self.fields.swapaxes(0, 1).copy()
         xs, ys = ([7 * j + c for j in range(self.lobes)] for c in (0, 1))
         f[..., xs + ys] = f[..., ys + xs]
+        return replace(self, fields=f)
+
+    def window(self, win: tuple[slice, slice]) -> FieldTargets:
+        return replace(self, fields=self.fields[win])
+
+    def tone_mapped(self, hdr: np.ndarray, exposure: float, gamma: float) -> FieldTargets:
+        """HDR fields as a network sees them through tonemap(exposure, gamma): amplitudes
+        in its linear domain (a lobe's peak tone-mapped alone, then up by the inverse
+        curve; beyond white, exposure times the peak, up to the top of
+        LOG_AMPLITUDE_RANGE), the fraction as the share of the tone-mapped photo
+        `hdr` (the window's input, (H,W,3)) that the sliding layer is."""
+        from .model import LINEAR_GAMMA, LOG_AMPLITUDE_RANGE
+
+        if not self.hdr:
+            return self
+        f = self.fields.astype(np.float32)
+        for j in range(self.lobes):
+            amp = f[..., 7 * j + 4 : 7 * j + 7]
+            peak = np.clip(amp * exposure, 0.0, 1.0) ** (LINEAR_GAMMA / gamma)
+            f[..., 7 * j + 4 : 7 * j + 7] = np.minimum(
+                np.where(amp * exposure > 1.0, amp * exposure, peak), LOG_AMPLITUDE_RANGE[1]
+            )
+        if f.shape[-1] > 7 * self.lobes:
+            share = f[..., 7 * self.lobes : 7 * self.lobes + 3]
+            whole = tonemap(hdr, exposure, gamma)
+            rest = tonemap((1.0 - share) * hdr, exposure, gamma)
+            f[..., 7 * self.lobes : 7 * self.lobes + 3] = np.where(
+                whole > 0, 1.0 - rest / np.maximum(whole, 1e-12), 0.0
+            )
         return FieldTargets(f, self.lobes)
 
 
@@ -146,8 +180,11 @@ def teacher_settings(folder: Path) -> dict:
     return {**settings, "head": head, "lobes": lobes}
 
 
-def load_field_targets(folder: Path, name: str, shape: tuple[int, int], lobes: int) -> FieldTargets:
-    """`<folder>/<name>.npy` (C, H, W), fields of `lobes` lobes (see `teacher_settings`)."""
+def load_field_targets(
+    folder: Path, name: str, shape: tuple[int, int], lobes: int, hdr: bool = False
+) -> FieldTargets:
+    """`<folder>/<name>.npy` (C, H, W), fields of `lobes` lobes (see `teacher_settings`);
+    `hdr`: the renderer's (see FieldTargets)."""
     path = folder / f"{name}.npy"
     try:
         fields = np.load(path)
@@ -155,7 +192,7 @@ def load_field_targets(folder: Path, name: str, shape: tuple[int, int], lobes: i
         raise DatasetError(f"{path}: cannot read fitted fields ({err}); run `teacher`") from err
     if fields.ndim != 3 or fields.shape[1:] != shape:
         raise DatasetError(f"{path}: fields {fields.shape}, expected (C, {shape[0]}, {shape[1]})")
-    return FieldTargets(np.ascontiguousarray(fields.transpose(1, 2, 0)), lobes)
+    return FieldTargets(np.ascontiguousarray(fields.transpose(1, 2, 0)), lobes, hdr)
 
 
 # Heads whose fields are lobes and per-pixel scalars, so that a flip turns only the axes.
@@ -390,7 +427,7 @@ def make_sample(
     masks = [t.mask[win] for t in chosen]
     teacher = ex.teacher
     if teacher is not None:
-        teacher = FieldTargets(teacher.fields[win], teacher.lobes)
+        teacher = teacher.window(win)
     rays = pixel_rays(ex.intrinsics, y0, x0, ch, cw)
     camera = np.stack([t.offset for t in chosen]).astype(np.float32)  # (N, 3), a copy
     n = len(chosen)
@@ -434,7 +471,7 @@ def make_sample(
         "rays": chw(rays),
     }
     if teacher is not None:
-        sample["teacher"] = chw(teacher.fields)
+        sample["teacher"] = chw(teacher.tone_mapped(hdr_in, exposure, gamma).fields)
     if weights is None:
         sample["target"] = chw(tonemap(hdr_gts[0], exposure, gamma))
         sample["mask"] = chw(masks[0].astype(np.float32))
@@ -473,7 +510,9 @@ class ReshadeDataset(Dataset):
         self.cache = cache
         self.targets = targets
         self.teacher = teacher
-        self._teacher_lobes = teacher_settings(teacher)["lobes"] if teacher is not None else 0
+        told = teacher_settings(teacher) if teacher is not None else {}
+        self._teacher_lobes = told.get("lobes", 0)
+        self._teacher_hdr = told.get("units") == "hdr"
         self._examples: dict[Path, Example] = reuse._examples if reuse is not None else {}
         self._rng: np.random.Generator | None = None
         self._rng_pid = -1
@@ -488,7 +527,7 @@ class ReshadeDataset(Dataset):
             ex = load_example(folder)
             if self.teacher is not None:
                 ex.teacher = load_field_targets(
-                    self.teacher, ex.name, ex.mask.shape, self._teacher_lobes
+                    self.teacher, ex.name, ex.mask.shape, self._teacher_lobes, self._teacher_hdr
                 )
             if self.cache:
                 self._examples[folder] = ex

@@ -115,13 +115,17 @@ def sparse_penalty(fields: torch.Tensor, lobes: int) -> torch.Tensor:
     return penalty
 
 
-def target_psnrs(head: str, sample: dict, fields: torch.Tensor) -> list[tuple[float, float]]:
+def target_psnrs(
+    head: str, sample: dict, fields: torch.Tensor, domain: str = "display"
+) -> list[tuple[float, float]]:
     """(input PSNR, the fields' view's PSNR) at each target camera of `sample`."""
     image, disparity, rays = (sample[k][None] for k in ("image", "disparity", "rays"))
     targets, masks, cameras = sample["targets"], sample["masks"], sample["cameras"]
     psnr = []
     for k in range(len(targets)):
-        view = shade_lobes(image, fields, disparity, rays, cameras[k : k + 1], head=head)
+        view = shade_lobes(
+            image, fields, disparity, rays, cameras[k : k + 1], domain=domain, head=head
+        )
         psnr.append(
             (
                 masked_psnr(image, targets[k : k + 1], masks[k : k + 1]),

@@ -7,6 +7,7 @@ Both images are multiplied by the validity mask before every term, as in the pap
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import torch
@@ -233,27 +234,71 @@ def multi_target_loss(
     return criterion(pred[keep], targets[keep], masks[keep], photos[keep])
 
 
-def field_loss(fields: torch.Tensor, teacher: torch.Tensor, lobes: int) -> torch.Tensor:
+# How the sliding layer's fraction is compared with its teacher's (`train --teacher-distance`).
+FRACTION_DISTANCES = ("l1", "squared")
+
+
+def fraction_distance(p: torch.Tensor, t: torch.Tensor, kind: str) -> torch.Tensor:
+    """ "l1": the mean absolute difference. A teacher's fraction is zero almost everywhere,
+    and where a network cannot tell a pixel's from the photo the L1 optimum is the median
+    of what it has seen there, zero: it slides too little (`teacher-check`: its mean
+    fraction stays at a quarter to a half of the teacher's). "squared": the mean squared
+    difference, whose optimum is the mean instead, scaled by mean(t) / mean(t^2) so that a
+    network sliding nothing is as far from the teacher as under "l1"."""
+    if kind == "l1":
+        return (p - t).abs().mean()
+    if kind != "squared":
+        raise ValueError(f"fraction distance {kind!r}: expected one of {FRACTION_DISTANCES}")
+    scale = t.mean() / (t * t).mean().clamp(min=1e-12)
+    return scale.detach() * ((p - t) ** 2).mean()
+
+
+def field_loss(
+    fields: torch.Tensor,
+    teacher: torch.Tensor,
+    lobes: int,
+    fraction: str = "l1",
+    log_amplitude: bool = False,
+) -> torch.Tensor:
     """How far a lobe head's fields (B,C,H,W) are from fitted ones (`train --teacher`).
 
     Amplitudes and the sliding layer's fraction are compared as they are. A lobe's axis and
     sharpness matter only as far as its amplitude (a lobe of amplitude 0 may point
     anywhere), and the layer's depth only as far as its fraction, so those are weighted by
-    the fitted amplitude or fraction. Sharpness is compared in log, over the span of
-    SHARPNESS_RANGE (a mirror's lobe and a wide one differ by four orders)."""
-    from .model import SHARPNESS_RANGE
+    the fitted amplitude or fraction; the fraction is compared by `fraction_distance`.
+    Sharpness is compared in log, over the span of SHARPNESS_RANGE (a mirror's lobe and a
+    wide one differ by four orders). `log_amplitude` (domain linear-clamped, whose
+    amplitudes span ten orders): amplitudes are compared by their squared log ratio, from
+    AMPLITUDE_SEEN (fainter lobes change nothing past the dead zone, so where the teacher
+    has none any fainter one will do: a network starts below it, and is pulled down only
+    from above it) to the top of LOG_AMPLITUDE_RANGE, and weigh axes and sharpness up to 1
+    (a lobe brighter than white matters as much as a white one)."""
+    from .model import AMPLITUDE_SEEN, LOG_AMPLITUDE_RANGE, SHARPNESS_RANGE
 
-    span = torch.log(torch.tensor(SHARPNESS_RANGE[1] / SHARPNESS_RANGE[0]))
+    span = math.log(SHARPNESS_RANGE[1] / SHARPNESS_RANGE[0])
+    lo, hi = AMPLITUDE_SEEN, LOG_AMPLITUDE_RANGE[1]
     total = fields.new_zeros(())
     for j in range(lobes):
         p, t = fields[:, 7 * j : 7 * j + 7], teacher[:, 7 * j : 7 * j + 7]
         weight = t[:, 4:7].abs().mean(1, keepdim=True)
-        total = total + (p[:, 4:7] - t[:, 4:7]).abs().mean()
+        if log_amplitude:
+            weight = weight.clamp(max=1.0)
+            mine = torch.log(p[:, 4:7].clamp(min=1e-30, max=hi))
+            told = torch.log(t[:, 4:7].clamp(min=lo, max=hi))
+            # Where the teacher has no lobe only a brighter one is pulled down, so that a
+            # faint one keeps its gradient where the teacher has one.
+            gap = torch.where(t[:, 4:7] > lo, mine - told, (mine - told).clamp(min=0.0))
+            # Squared: L1's pull is the same for a lobe a hair too bright where the teacher
+            # has none as for one a thousand times too faint where it has one, and with
+            # most pixels unlit a network sits at the threshold everywhere.
+            total = total + (gap / math.log(hi / lo)).square().mean()
+        else:
+            total = total + (p[:, 4:7] - t[:, 4:7]).abs().mean()
         total = total + (weight * (1.0 - (p[:, 0:3] * t[:, 0:3]).sum(1, keepdim=True))).mean()
         log_ratio = torch.log(p[:, 3:4].clamp(min=1e-6) / t[:, 3:4].clamp(min=1e-6))
         total = total + (weight * log_ratio.abs()).mean() / span
     if fields.shape[1] > 7 * lobes:
         p, t = fields[:, 7 * lobes :], teacher[:, 7 * lobes :]
-        total = total + (p[:, 0:3] - t[:, 0:3]).abs().mean()
+        total = total + fraction_distance(p[:, 0:3], t[:, 0:3], fraction)
         total = total + (t[:, 0:3].mean(1, keepdim=True) * (p[:, 3:4] - t[:, 3:4]).abs()).mean()
     return total

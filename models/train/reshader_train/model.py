@@ -8,6 +8,7 @@ frequency encoding lives inside the encoder: callers feed `d = clamp(0.25 / dept
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass
 
 import torch
@@ -52,8 +53,16 @@ def lobe_head_channels(head: str, lobes: int) -> int:
     return HEAD_CHANNELS[head] * lobes + LOBE_EXTRA_CHANNELS[head]
 
 
-LOBE_DOMAINS = ("display", "linear")
-# The inverse tone curve of the "linear" domain: the training data's display encoding is a
+LOBE_DOMAINS = ("display", "linear", "linear-clamped")
+# "linear-clamped" (head "lobes" only): a clipped highlight holds less light than its lobe,
+# and I + S(w) - S(w0) (S = sum_j a_j G_j) would dig a dark hole where it leaves. In the
+# linear domain a view is instead min(max(I - k S(w0), 0) + k S(w), 1): it never removes
+# more light than the pixel has, and clips as the photo did. k = 1 where the photo clipped
+# (there a lobe may be far brighter than white: where it clips, its edge, is what moves),
+# else min(1, I / S(w0)), so that a lobe never holds more than its pixel; either way the
+# view at the photo's camera is the photo.
+CLIPPED = 1.0 - 0.5 / 255
+# The inverse tone curve of the linear domains: the training data's display encoding is a
 # gamma between 2.2 and 5 (the paper's augmentation); 2.2 is its most common value and a
 # photo's sRGB curve's nearest power.
 LINEAR_GAMMA = 2.2
@@ -94,6 +103,8 @@ class NetConfig:
             raise ValueError(f"lobes {self.lobes} must be in 1..8")
         if self.domain not in LOBE_DOMAINS:
             raise ValueError(f"unknown lobe domain {self.domain!r}: expected one of {LOBE_DOMAINS}")
+        if self.domain == "linear-clamped" and self.head != "lobes":
+            raise ValueError(f"lobe domain linear-clamped is for the lobes head, not {self.head}")
 
     @property
     def out_channels(self) -> int:
@@ -350,6 +361,13 @@ LOBE_LAYOUT = ("mu_x", "mu_y", "mu_z", "sharpness", "amp_r", "amp_g", "amp_b")
 # depth 1-5 turns w by 0.02-0.3 rad, and exp(-lambda theta^2 / 2) must resolve that.
 SHARPNESS_RANGE = (1.0, 2.0e4)
 SHARPNESS_INIT = 100.0
+# Domain "linear-clamped" amplitudes are positive and span ten orders (a highlight clipped
+# in the photo may be thousands of times brighter than white: where it clips, its edge,
+# is what moves): a sigmoid in log between these bounds, starting at AMPLITUDE_INIT, below
+# AMPLITUDE_SEEN, the faintest lobe a view shows past the dead zone.
+LOG_AMPLITUDE_RANGE = (1.0e-6, 1.0e4)
+AMPLITUDE_INIT = 1.0e-4
+AMPLITUDE_SEEN = 1.0e-3
 AMPLITUDE_MAX = 2.0
 # The axis is predicted as an offset from the input camera's own direction w_0, so that a
 # pixel seen at its highlight's peak needs an offset of zero; offsets are at most this long.
@@ -370,10 +388,15 @@ def view_directions(disparity: torch.Tensor, rays: torch.Tensor, camera: torch.T
 class LobeField(nn.Module):
     """The decoder's raw channels -> lobes (B, 7K, H, W) in LOBE_LAYOUT order per lobe."""
 
-    def __init__(self, lobes: int, head: str = "lobes") -> None:
+    def __init__(self, lobes: int, head: str = "lobes", domain: str = "display") -> None:
         super().__init__()
         self.lobes = lobes
         self.head = head
+        self.log_amplitude = domain == "linear-clamped"
+        lo_a, hi_a = (math.log(v) for v in LOG_AMPLITUDE_RANGE)
+        self.amplitude_span = (lo_a, hi_a)
+        a = (math.log(AMPLITUDE_INIT) - lo_a) / (hi_a - lo_a)
+        self.amplitude_bias = math.log(a / (1 - a))
         lo, hi = (torch.log(torch.tensor(v)) for v in SHARPNESS_RANGE)
         self.register_buffer("log_sharpness", torch.stack([lo, hi]), persistent=False)
         # sigmoid(b) places the sharpness at SHARPNESS_INIT when the raw channel is 0.
@@ -389,7 +412,7 @@ class LobeField(nn.Module):
             mu = w0 + AXIS_OFFSET_MAX * torch.tanh(p[:, 0:3])
             mu = mu / torch.sqrt((mu * mu).sum(1, keepdim=True) + 1e-12)
             sharp = torch.exp(lo + (hi - lo) * torch.sigmoid(p[:, 3:4] + self.sharpness_bias))
-            parts += [mu, sharp, AMPLITUDE_MAX * torch.tanh(p[:, 4:7])]
+            parts += [mu, sharp, self.amplitude(p[:, 4:7])]
         extra = raw[:, 7 * self.lobes :]
         if self.head == "lobes-flow":
             parts.append(LOBE_FLOW_MAX * torch.tanh(extra))
@@ -397,6 +420,12 @@ class LobeField(nn.Module):
             fraction = torch.sigmoid(extra[:, 0:3] + SLIDE_FRACTION_BIAS)
             parts += [fraction, SLIDE_DEPTH_INIT + torch.tanh(extra[:, 3:4])]
         return torch.cat(parts, dim=1)
+
+    def amplitude(self, raw: torch.Tensor) -> torch.Tensor:
+        if not self.log_amplitude:
+            return AMPLITUDE_MAX * torch.tanh(raw)
+        lo, hi = self.amplitude_span
+        return torch.exp(lo + (hi - lo) * torch.sigmoid(raw + self.amplitude_bias))
 
 
 # The "lobes-flow" head adds what a lobe cannot do alone: light that slides from one pixel
@@ -480,15 +509,28 @@ def slide_change(
     return moved - spec
 
 
-def lobe_change(lobes: torch.Tensor, w: torch.Tensor, w0: torch.Tensor) -> torch.Tensor:
-    """sum_j a_j [G_j(w) - G_j(w0)] for lobes (B,7K,H,W) and unit directions (B,3,H,W)."""
-    change = torch.zeros_like(w)
+def _lobe_parts(lobes: torch.Tensor):
+    """(mu, sharpness, amplitude) of each lobe of lobes (B,7K,H,W)."""
     for j in range(lobes.shape[1] // 7):
-        mu, sharp, amp = (
+        yield (
             lobes[:, 7 * j : 7 * j + 3],
             lobes[:, 7 * j + 3 : 7 * j + 4],
             lobes[:, 7 * j + 4 : 7 * j + 7],
         )
+
+
+def lobe_sum(lobes: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
+    """sum_j a_j G_j(w) for lobes (B,7K,H,W) and unit directions w (B,3,H,W)."""
+    total = torch.zeros_like(w)
+    for mu, sharp, amp in _lobe_parts(lobes):
+        total = total + amp * torch.exp(sharp * ((mu * w).sum(1, keepdim=True) - 1.0))
+    return total
+
+
+def lobe_change(lobes: torch.Tensor, w: torch.Tensor, w0: torch.Tensor) -> torch.Tensor:
+    """sum_j a_j [G_j(w) - G_j(w0)] for lobes (B,7K,H,W) and unit directions (B,3,H,W)."""
+    change = torch.zeros_like(w)
+    for mu, sharp, amp in _lobe_parts(lobes):
         g = torch.exp(sharp * ((mu * w).sum(1, keepdim=True) - 1.0))
         g0 = torch.exp(sharp * ((mu * w0).sum(1, keepdim=True) - 1.0))
         change = change + amp * (g - g0)
@@ -508,6 +550,21 @@ def shade_lobes(
     """The reshaded image for camera centres `camera` (B,3): what the runtime evaluates."""
     w = view_directions(disparity, rays, camera)
     w0 = view_directions(disparity, rays, torch.zeros_like(camera))
+    if domain == "linear-clamped":
+        linear = image.clamp(min=0.0) ** LINEAR_GAMMA
+        s0, s = lobe_sum(lobes, w0), lobe_sum(lobes, w)
+        clipped = image >= CLIPPED
+        k = torch.where(clipped, 1.0, (linear / s0.clamp(min=1e-12)).clamp(max=1.0))
+        # max(I - k S0, 0) + k S written so that it is I exactly at the photo's camera:
+        # k S0 <= I where the photo did not clip.
+        dug = torch.where(clipped, (s0 - linear).clamp(min=0.0), 0.0)
+        moved = (linear + k * (s - s0) + dug).clamp(max=1.0)
+        change = shrink(moved - linear, deadzone)
+        return torch.where(
+            change == 0,
+            image,
+            (linear + change).clamp(min=LINEAR_FLOOR) ** (1.0 / LINEAR_GAMMA),
+        )
     lobe_channels = lobes.shape[1] - LOBE_EXTRA_CHANNELS[head]
     change = lobe_change(lobes[:, :lobe_channels], w, w0)
     extra = lobes[:, lobe_channels:]
@@ -529,7 +586,9 @@ class ReshadeNet(nn.Module):
         self.cfg = cfg
         self.encoder = Encoder(cfg)
         self.decoder = Decoder(cfg)
-        self.lobe_field = LobeField(cfg.lobes, cfg.head) if cfg.head in LOBE_HEADS else None
+        self.lobe_field = (
+            LobeField(cfg.lobes, cfg.head, cfg.domain) if cfg.head in LOBE_HEADS else None
+        )
         # He initialisation for LeakyReLU keeps activations from fading over the ~20 layers
         # between the camera features and the output (PyTorch's default init shrinks them,
         # and the camera's influence with them).

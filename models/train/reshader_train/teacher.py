@@ -7,9 +7,15 @@ gradient only where the camera offsets of its batch happen to move light across 
 per example (see `field_fit`) finds fields that reproduce all of its cameras; a network
 told those fields learns per pixel which light slides and how far, as a segmentation.
 
+With `--source renderer` the fields are not fitted but taken from the analytic renderer
+(`render.decompose`: for "lobes", each pixel's reflections of the scene's lights; for
+"lobes-slide", its specular layer and the depth of the reflected image), for examples of
+`render --scenes analytic`: unique, and exact where the head's model of the change is.
+
 Writes `<out>/<example>.npy` (float16, the head's fields (C, H, W) in LobeField's layout)
-and `<out>/teacher.json` (head, lobes, fit settings). Resumable: examples whose file
-exists are skipped; files appear whole (written under a temporary name, then renamed).
+and `<out>/teacher.json` (head, lobes, fit settings or the source). Resumable: examples
+whose file exists are skipped; files appear whole (written under a temporary name, then
+renamed). Prints, per example, what the fields gain on its own cameras.
 """
 
 from __future__ import annotations
@@ -29,6 +35,7 @@ from .data import (
     TEACHER_HEADS,
     TEACHER_JSON,
     DatasetError,
+    FieldTargets,
     list_examples,
     load_example,
     make_sample,
@@ -54,6 +61,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     add_fit_arguments(p, lobes=1, smooth=8, sparsity=SPARSITY, why=why)
     p.add_argument(
+        "--source",
+        default="fit",
+        choices=("fit", "renderer"),
+        help="fit: fields fitted to each example's cameras (the fit options apply); "
+        "renderer: the analytic renderer's own (analytic examples only; --head lobes gives "
+        "fields for --lobe-domain linear-clamped) (default fit)",
+    )
+    p.add_argument(
         "--shard",
         default="0/1",
         help="I/N: fit every N-th example from the I-th, to run N processes (default 0/1)",
@@ -71,6 +86,15 @@ def parse_shard(text: str) -> tuple[int, int]:
 
 
 def settings(args: argparse.Namespace) -> dict:
+    if args.source == "renderer":
+        domain = "linear-clamped" if args.head == "lobes" else "display"
+        return {
+            "head": args.head,
+            "lobes": args.lobes,
+            "source": "renderer",
+            "units": "hdr",
+            "domain": domain,
+        }
     return {
         "head": args.head,
         "lobes": args.lobes,
@@ -95,12 +119,74 @@ def claim_settings(out: Path, wanted: dict) -> None:
     tmp.replace(path)
 
 
-def fitted_gain(head: str, sample: dict, fields: torch.Tensor) -> float | None:
+def fitted_gain(
+    head: str, sample: dict, fields: torch.Tensor, domain: str = "display"
+) -> float | None:
     """Mean gain of the fit on the example's cameras whose shading changes (an unchanged
     view's input is its truth to the last bit: there a fit can only lose), None if none."""
-    psnr = target_psnrs(head, sample, fields)
+    psnr = target_psnrs(head, sample, fields, domain)
     gains = [ours - before for before, ours in psnr if before < CHANGING_BELOW_DB]
     return statistics.mean(gains) if gains else None
+
+
+# Fields are stored as float16; the renderer's HDR amplitudes can exceed its range.
+F16_MAX = 6.0e4
+
+
+def example_fields(args: argparse.Namespace, folder: Path, ex) -> tuple[np.ndarray, float | None]:
+    """The example's fields (C, H, W) as stored, and what they gain on its cameras."""
+    if args.source == "renderer":
+        fields = renderer_fields(folder, ex, args.head, args.lobes)
+        told = FieldTargets(fields.transpose(1, 2, 0), args.lobes, hdr=True)
+        ex.teacher = told
+        sample = make_sample(ex, crop=None, rng=None, aug=None, targets=ex.target_count)
+        ex.teacher = None
+        domain = settings(args)["domain"]
+        return fields, fitted_gain(args.head, sample, sample["teacher"][None], domain)
+    sample = make_sample(ex, crop=None, rng=None, aug=None, targets=ex.target_count)
+    fitted = fit_fields(
+        args.head,
+        args.lobes,
+        sample,
+        args.smooth,
+        args.steps,
+        args.lr,
+        held_out=0,
+        sparsity=args.sparsity,
+    )
+    return fitted[0].numpy(), fitted_gain(args.head, sample, fitted)
+
+
+def renderer_fields(folder: Path, ex, head: str, lobes: int) -> np.ndarray:
+    """The analytic renderer's fields (C, H, W) for example `folder` (HDR, see
+    FieldTargets), its scene drawn again from the seed and index in its meta.json."""
+    from .render.analytic import make_example
+    from .render.decompose import decompose, light_lobes
+
+    meta = json.loads((folder / "meta.json").read_text())
+    if meta.get("scene", {}).get("family") != "analytic":
+        raise ValueError(f"{folder}: not an analytic example; --source renderer needs one")
+    scene, _, cam, _, _ = make_example(meta["seed"], meta["index"], meta["width"], meta["height"])
+    stored = np.asarray(meta["input_camera"]["world_from_camera"], dtype=float)[:3, 3]
+    if not np.allclose(stored, cam.centre, atol=1e-6):
+        raise ValueError(
+            f"{folder}: its scene does not draw again from seed {meta['seed']} index "
+            f"{meta['index']} (rendered with other --radius settings or another version)"
+        )
+    truth = decompose(scene, cam, meta["spp"])
+    lit = truth["input"].mean(2) > 1e-6
+    scale = float(np.median(ex.input[lit].astype(np.float32) / truth["input"][lit]))
+    if head == "lobes":
+        fields = light_lobes(scene, cam, lobes)
+        for j in range(lobes):
+            fields[..., 7 * j + 4 : 7 * j + 7] *= scale
+    else:
+        fields = light_lobes(scene, cam, lobes)
+        fields[..., 4::7] = 0.0
+        fields[..., 5::7] = 0.0
+        fields[..., 6::7] = 0.0
+        fields = np.concatenate([fields, truth["share"], truth["rho"][..., None]], axis=2)
+    return np.ascontiguousarray(fields.transpose(2, 0, 1))
 
 
 def run(args: argparse.Namespace) -> int:
@@ -136,22 +222,15 @@ def run(args: argparse.Namespace) -> int:
                 file=sys.stderr,
             )
             return 1
-        sample = make_sample(ex, crop=None, rng=None, aug=None, targets=ex.target_count)
-        fields = fit_fields(
-            args.head,
-            args.lobes,
-            sample,
-            args.smooth,
-            args.steps,
-            args.lr,
-            held_out=0,
-            sparsity=args.sparsity,
-        )
-        gain = fitted_gain(args.head, sample, fields)
+        try:
+            fields, gain = example_fields(args, folder, ex)
+        except ValueError as err:
+            print(f"teacher: {err}", file=sys.stderr)
+            return 1
         if gain is not None:
             gains.append(gain)
         tmp = args.out / f".tmp-{folder.name}-{os.getpid()}.npy"
-        np.save(tmp, fields[0].numpy().astype(np.float16))
+        np.save(tmp, np.clip(fields, -F16_MAX, F16_MAX).astype(np.float16))
         tmp.replace(args.out / f"{folder.name}.npy")
         fit = "no view changes" if gain is None else f"{gain:+.2f} dB on its changing views"
         print(

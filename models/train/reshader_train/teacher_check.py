@@ -8,6 +8,11 @@ separates the two things that distance mixes: *where* the network puts its slidi
 (the correlation of its fraction with the teacher's, and the share of the teacher's fraction
 that lies in the network's top tenth of pixels: 0.1 by chance, 1 when the network's
 brightest tenth holds all of it) and *how much* (the two mean fractions).
+
+For a "lobes" network (the renderer's lobes, `teacher --source renderer`) it says the same
+of the lobes: at the pixels the teacher lights (a lobe of at least AMPLITUDE_SEEN) the
+median amplitude of each, in log10, the network's at the others, and how well the lit
+pixels' axes and sharpnesses agree.
 """
 
 from __future__ import annotations
@@ -41,22 +46,52 @@ def selection(network: np.ndarray, teacher: np.ndarray) -> dict[str, float]:
     }
 
 
+def lobe_agreement(network: np.ndarray, teacher: np.ndarray) -> dict[str, float] | None:
+    """How the first lobe of two (7K, H, W) field maps agree where the teacher's shines
+    (None if nowhere): median log10 amplitudes (mean of the colours) there, the network's
+    elsewhere, the mean cosine of the axes and the median log10 sharpness ratio there."""
+    from .model import AMPLITUDE_SEEN
+
+    amp_n, amp_t = network[4:7].mean(0), teacher[4:7].mean(0)
+    lit = amp_t > AMPLITUDE_SEEN
+    if not lit.any():
+        return None
+    log = np.log10
+    return {
+        "lit_share": float(lit.mean()),
+        "network_amplitude_lit": float(np.median(log(np.maximum(amp_n[lit], 1e-30)))),
+        "teacher_amplitude_lit": float(np.median(log(amp_t[lit]))),
+        "network_amplitude_unlit": float(np.median(log(np.maximum(amp_n[~lit], 1e-30))))
+        if (~lit).any()
+        else float("nan"),
+        "axis_cosine_lit": float((network[0:3] * teacher[0:3]).sum(0)[lit].mean()),
+        "sharpness_ratio_lit": float(np.median(log(network[3][lit] / teacher[3][lit]))),
+    }
+
+
+def compare(head: str, lobes: int, network: np.ndarray, teacher: np.ndarray) -> dict | None:
+    """The head's agreement with its teacher on one example (None: nothing to compare)."""
+    if head == "lobes":
+        return lobe_agreement(network, teacher)
+    layer = slice(7 * lobes, 7 * lobes + 3)  # the sliding fraction's three colours
+    taught = teacher[layer].mean(0)
+    if taught.mean() < 1e-4:
+        return None
+    return selection(network[layer].mean(0), taught)
+
+
 @torch.no_grad()
 def check(net, data: Path, teacher: Path, count: int, seed: int) -> list[dict]:
-    """`selection` of the sliding fraction (mean over colours) on up to `count` examples
-    drawn with `seed`, skipping those whose teacher slides nothing."""
+    """`compare` on up to `count` examples drawn with `seed`, skipping those whose teacher
+    slides or lights nothing."""
     lobes = teacher_settings(teacher)["lobes"]
     if lobes != net.cfg.lobes:
         raise ValueError(f"{teacher}: fields of {lobes} lobe(s), the network has {net.cfg.lobes}")
     ds = ReshadeDataset(data, teacher=teacher, targets=2)
     picks = np.random.default_rng(seed).permutation(len(ds))[:count]
     rows = []
-    layer = slice(7 * lobes, 7 * lobes + 3)  # the sliding fraction's three colours
     for idx in picks:
         s = ds[int(idx)]
-        taught = s["teacher"][layer].mean(0).numpy()
-        if taught.mean() < 1e-4:
-            continue
         h, w = s["image"].shape[-2:]
         _, fields = net(
             pad_to_multiple(s["image"][None]),
@@ -65,13 +100,34 @@ def check(net, data: Path, teacher: Path, count: int, seed: int) -> list[dict]:
             pad_to_multiple(s["rays"][None]),
             fields=True,
         )
-        mine = fields[0, layer, :h, :w].mean(0).numpy()
-        rows.append({"example": ds.example(int(idx)).name, **selection(mine, taught)})
+        row = compare(net.cfg.head, lobes, fields[0, :, :h, :w].numpy(), s["teacher"].numpy())
+        if row is not None:
+            rows.append({"example": ds.example(int(idx)).name, **row})
     return rows
 
 
+def summary_line(head: str, count: int, means: dict[str, float]) -> str:
+    if head == "lobes":
+        return (
+            f"{count} examples with a lit teacher ({means['lit_share']:.0%} of their pixels); "
+            f"median log10 amplitude where lit: network {means['network_amplitude_lit']:.2f}, "
+            f"teacher {means['teacher_amplitude_lit']:.2f}; elsewhere network "
+            f"{means['network_amplitude_unlit']:.2f}; axis cosine where lit "
+            f"{means['axis_cosine_lit']:.3f}; log10 sharpness ratio "
+            f"{means['sharpness_ratio_lit']:+.2f}"
+        )
+    return (
+        f"{count} examples with a sliding teacher; fraction correlation "
+        f"{means['correlation']:.3f}; the teacher's share in the network's top tenth "
+        f"{means['teacher_share_in_top_tenth']:.3f} (chance {1 - TOP:.1f}); mean fraction: "
+        f"network {means['network_mean']:.4f}, teacher {means['teacher_mean']:.4f}"
+    )
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--checkpoint", type=Path, required=True, help="a lobes-slide checkpoint")
+    p.add_argument(
+        "--checkpoint", type=Path, required=True, help="a lobes-slide or lobes checkpoint"
+    )
     p.add_argument("--data", type=Path, required=True, help="the training examples")
     p.add_argument("--teacher", type=Path, required=True, help="their fitted fields")
     p.add_argument("--count", type=int, default=40, help="examples drawn (default 40)")
@@ -84,22 +140,17 @@ def run(args: argparse.Namespace) -> int:
     torch.set_num_threads(max(1, args.threads))
     try:
         net, _ = load_checkpoint_model(args.checkpoint)
-        if net.cfg.head != "lobes-slide":
-            raise ValueError(f"{args.checkpoint}: a {net.cfg.head} head has no sliding layer")
+        if net.cfg.head not in ("lobes-slide", "lobes"):
+            raise ValueError(f"{args.checkpoint}: a {net.cfg.head} head has no fields to check")
         rows = check(net, args.data, args.teacher, args.count, args.seed)
     except (FileNotFoundError, ValueError, DatasetError) as err:
         print(f"teacher-check: {err}", file=sys.stderr)
         return 2
     if not rows:
-        print("teacher-check: no drawn example has a sliding teacher", file=sys.stderr)
+        print("teacher-check: no drawn example has a sliding or lit teacher", file=sys.stderr)
         return 1
-    means = {k: float(np.mean([r[k] for r in rows])) for k in rows[0] if k != "example"}
-    print(
-        f"{args.checkpoint}: {len(rows)} examples with a sliding teacher; fraction correlation "
-        f"{means['correlation']:.3f}; the teacher's share in the network's top tenth "
-        f"{means['teacher_share_in_top_tenth']:.3f} (chance {1 - TOP:.1f}); mean fraction: "
-        f"network {means['network_mean']:.4f}, teacher {means['teacher_mean']:.4f}"
-    )
+    means = {k: float(np.nanmean([r[k] for r in rows])) for k in rows[0] if k != "example"}
+    print(f"{args.checkpoint}: {summary_line(net.cfg.head, len(rows), means)}")
     if args.json:
         tmp = args.json.with_name(f".{args.json.name}.tmp")
         tmp.write_text(json.dumps({"means": means, "examples": rows}, indent=2))

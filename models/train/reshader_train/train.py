@@ -30,6 +30,7 @@ from .data import Augment, DatasetError, ReshadeDataset, list_examples, teacher_
 from .evaluate import masked_psnr, reshade
 from .features import CHOICES, FeatureNetError
 from .losses import (
+    FRACTION_DISTANCES,
     LossWeights,
     ReshadeLoss,
     field_loss,
@@ -148,6 +149,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="the fitted-field weight falls linearly from --teacher-weight to 0 over the "
         "first STEPS steps, so that the fields guide the start and the views decide the "
         "rest (default 0: the weight stays)",
+    )
+    p.add_argument(
+        "--teacher-distance",
+        default="l1",
+        choices=FRACTION_DISTANCES,
+        help="how the sliding layer's fraction is compared with the teacher's: l1 (the "
+        "median's loss, which under-slides where the photo leaves doubt) or squared (the "
+        "mean's, scaled to l1's size for a network that slides nothing) (default l1)",
     )
     p.add_argument("--lr", type=float, default=1e-4)
     p.add_argument("--lr-final", type=float, default=1e-5)
@@ -523,13 +532,19 @@ def check_teacher(folder: Path, cfg: NetConfig) -> None:
             f"{folder}: fields of --head {head} --lobes {lobes}, but this run trains --head "
             f"{cfg.head} --lobes {cfg.lobes}"
         )
+    domain = fitted.get("domain", "display")
+    if domain != cfg.domain:
+        raise ValueError(
+            f"{folder}: fields for --lobe-domain {domain}, but this run trains {cfg.domain}"
+        )
 
 
 def train_step(
     model, criterion: ReshadeLoss, opt, batch: dict, lr: float, d: Dist, step: int, teach=None
 ):
-    """One optimiser step. `teach` (lobes, weight): batches carry fitted fields ("teacher"),
-    and the fields' distance from them (`field_loss`) is added at that weight."""
+    """One optimiser step. `teach` (lobes, weight, fraction distance, log amplitudes):
+    batches carry fitted fields ("teacher"), and the fields' distance from them
+    (`field_loss`) is added at that weight."""
     for group in opt.param_groups:
         group["lr"] = lr * group.get("lr_scale", 1.0)
     b = {k: v.to(d.device, non_blocking=True) for k, v in batch.items()}
@@ -545,7 +560,7 @@ def train_step(
     else:
         loss, parts = criterion(pred, b["target"], b["mask"], b["image"])
     if teach is not None:
-        taught = field_loss(fields, b["teacher"], teach[0])
+        taught = field_loss(fields, b["teacher"], teach[0], teach[2], teach[3])
         loss = loss + teach[1] * taught
         parts = {**parts, "loss": float(loss.detach()), "teacher": float(taught.detach())}
     if not torch.isfinite(loss):
@@ -635,7 +650,16 @@ def train(args: argparse.Namespace) -> ReshadeNet:
             if step >= args.steps:
                 break
             lr = lr_at(step, args)
-            teach = (args.lobes, teacher_weight_at(step, args)) if args.teacher else None
+            teach = (
+                (
+                    args.lobes,
+                    teacher_weight_at(step, args),
+                    args.teacher_distance,
+                    cfg.domain == "linear-clamped",
+                )
+                if args.teacher
+                else None
+            )
             parts = train_step(model, criterion, opt, batch, lr, d, step, teach)
             step += 1
             log.step(step, parts, lr, len(dataset))

@@ -16,7 +16,7 @@ from reshader_train.data import (
     make_sample,
     teacher_settings,
 )
-from reshader_train.losses import field_loss
+from reshader_train.losses import field_loss, fraction_distance
 from reshader_train.synthetic import write_dataset
 
 
@@ -116,6 +116,20 @@ def test_field_loss_is_zero_at_the_teacher_and_weighs_axes_by_amplitude():
     assert float(field_loss(turned, faint, 1)) == pytest.approx(0.0, abs=1e-6)
 
 
+def test_squared_fraction_distance_prefers_the_mean_where_l1_prefers_zero():
+    # A pixel the teacher slides in one example in four: L1's best guess is 0, the
+    # squared distance's is the mean; both cost mean(t) for a network that slides nothing.
+    t = torch.zeros(4, 3, 1, 1)
+    t[0] = 0.4
+    nothing, mean = torch.zeros_like(t), torch.full_like(t, 0.1)
+    l1 = [float(fraction_distance(p, t, "l1")) for p in (nothing, mean)]
+    sq = [float(fraction_distance(p, t, "squared")) for p in (nothing, mean)]
+    assert l1[0] < l1[1] and sq[1] < sq[0]
+    assert sq[0] == pytest.approx(float(t.mean())) == pytest.approx(l1[0])
+    with pytest.raises(ValueError, match="fraction distance"):
+        fraction_distance(t, t, "l2")
+
+
 def test_train_with_a_teacher_logs_its_term(analytic, tmp_path):
     data, fields = analytic
     run = tmp_path / "run"
@@ -123,7 +137,7 @@ def test_train_with_a_teacher_logs_its_term(analytic, tmp_path):
             "--batch-size", "2", "--crop", "32", "--workers", "0", "--threads", "1",
             "--log-every", "1", "--no-progress", "--head", "lobes-slide", "--lobes", "1",
             "--loss-weights", "1,0,0", "--targets-per-example", "2", "--dihedral",
-            "--teacher", str(fields)]  # fmt: skip
+            "--teacher", str(fields), "--teacher-distance", "squared"]  # fmt: skip
     assert main(argv) == 0
     with open(run / "log.csv", newline="") as f:
         rows = list(csv.DictReader(f))
@@ -221,4 +235,4 @@ def test_teacher_check_compares_a_sliding_network_with_its_teacher(analytic, tmp
     cfg = net_config(TINY)
     torch.save({"model": ReshadeNet(cfg).state_dict(), "net_config": cfg.to_json()}, residual)
     assert main([*argv[:2], str(residual), *argv[3:]]) == 2
-    assert "has no sliding layer" in capsys.readouterr().err
+    assert "has no fields to check" in capsys.readouterr().err

@@ -231,11 +231,16 @@ def lobe_radiance(lobes: list[dict], d: np.ndarray) -> np.ndarray:
     return out
 
 
-def sg_reflection(g: dict, r: np.ndarray, lobe_sharpness: np.ndarray) -> np.ndarray:
-    """Integral of SG light g against a normalised SG lobe around r (closed form)."""
+def sg_reflection(
+    g: dict, r: np.ndarray, lobe_sharpness: np.ndarray, cos: np.ndarray | None = None
+) -> np.ndarray:
+    """Integral of SG light g against a normalised SG lobe around r (closed form); with
+    `cos`, for lobes whose axis makes that cosine with the light's instead (r unused)."""
     axis, lam = np.asarray(g["axis"]), g["sharpness"]
-    mixed = lam * axis + lobe_sharpness[:, None] * r
-    lam_m = np.linalg.norm(mixed, axis=1)
+    if cos is None:
+        lam_m = np.linalg.norm(lam * axis + lobe_sharpness[:, None] * r, axis=1)
+    else:
+        lam_m = np.sqrt(lam**2 + lobe_sharpness**2 + 2 * lam * lobe_sharpness * cos)
     norm = lobe_sharpness / (2 * math.pi * (1 - np.exp(-2 * lobe_sharpness)))
     value = (
         norm * np.exp(lam_m - lam - lobe_sharpness) * 2 * math.pi / lam_m * (1 - np.exp(-2 * lam_m))
@@ -350,6 +355,13 @@ def _mirrored_objects(scene: dict, p, n, r, alpha, env) -> np.ndarray:
 def _specular(scene: dict, s: Surface, v: np.ndarray):
     """(radiance of the specular layer, its Fresnel factor) at the glossy samples, seen
     along -v."""
+    env, orbs, f = specular_parts(scene, s, v)
+    return env + sum(orbs, np.zeros_like(env)), f
+
+
+def specular_parts(scene: dict, s: Surface, v: np.ndarray):
+    """The specular layer at the glossy samples seen along -v, by where its light comes
+    from: (the reflected environment and objects, one term per orb, the Fresnel factor)."""
     sel = s.glossy
     p, n, alpha, f0 = s.points[sel], s.normal[sel], s.alpha[sel], s.f0[sel]
     # Rows of the glossy samples among the lit surface samples of `Surface._light`.
@@ -359,7 +371,8 @@ def _specular(scene: dict, s: Surface, v: np.ndarray):
     f = fresnel(f0, nv)
     lobe_sharp = 2 / alpha**2 / (4 * nv)
     env = _environment(scene, r, alpha, lobe_sharp, [vis[rows] for vis in s.light_vis])
-    out = f * _mirrored_objects(scene, p, n, r, alpha, env)
+    env = f * _mirrored_objects(scene, p, n, r, alpha, env)
+    orbs = []
     for orb, (ldir, dist, vis, cos) in zip(scene["orbs"], s.orb_dirs, strict=True):
         d = dist[rows]
         widened = np.clip(alpha + orb["radius"] / (2 * d), 0, 1)
@@ -367,8 +380,8 @@ def _specular(scene: dict, s: Surface, v: np.ndarray):
         spec = spec * (alpha / widened) ** 2
         intensity = np.asarray(orb["radiance"]) * math.pi * orb["radius"] ** 2
         e = intensity * (cos[rows] * vis[rows] / d**2)[:, None]
-        out += fresnel(f0, vh) * spec[:, None] * e
-    return out, f
+        orbs.append(fresnel(f0, vh) * spec[:, None] * e)
+    return env, orbs, f
 
 
 def shade(scene: dict, s: Surface, eye: np.ndarray) -> np.ndarray:

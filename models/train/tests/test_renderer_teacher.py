@@ -1,0 +1,230 @@
+"""The analytic renderer's own fields (`teacher --source renderer`) and the lobes head's
+linear-clamped domain they are for."""
+
+import csv
+import json
+import math
+import shutil
+
+import numpy as np
+import pytest
+import torch
+from test_train import TINY
+
+from reshader_train.cli import main
+from reshader_train.data import FieldTargets, load_example, make_sample
+from reshader_train.losses import field_loss
+from reshader_train.model import (
+    AMPLITUDE_INIT,
+    AMPLITUDE_SEEN,
+    LINEAR_GAMMA,
+    LobeField,
+    lobe_sum,
+    shade_lobes,
+    view_directions,
+)
+from reshader_train.render.analytic import Camera, look_at
+from reshader_train.render.decompose import decompose, light_lobes
+
+
+def mirror_scene(roughness: float = 0.05, f0: float = 0.9) -> dict:
+    """A glossy floor under one SG light and a dark sky, nothing else."""
+    light = np.array([0.0, 1.0, -1.0]) / math.sqrt(2.0)
+    return {
+        "floor": {"albedo": [0.1, 0.1, 0.1], "roughness": roughness, "f0": [f0] * 3},
+        "objects": [],
+        "orbs": [],
+        "sky": {"horizon": [0.0] * 3, "zenith": [0.0] * 3, "ground": [0.0] * 3, "power": 1.0},
+        "lobes": [{"axis": light.tolist(), "sharpness": 500.0, "amplitude": [50.0] * 3}],
+    }
+
+
+def camera() -> Camera:
+    # Looking 45 degrees down towards -z: the floor mirrors the light (45 degrees up
+    # towards -z) into the middle of the view.
+    return Camera(look_at([0.0, 1.0, 2.0], [0.0, 0.0, 1.0], (0.0, 1.0, 0.0), 0.0), 24, 24, 60)
+
+
+def test_light_lobes_point_where_the_highlight_is():
+    scene, cam = mirror_scene(), camera()
+    fields = light_lobes(scene, cam, 1)
+    assert fields.shape == (24, 24, 7)
+    # At the highlight, the brightest part of the photo and almost all specular, the lobe's
+    # axis is the direction back to the camera (w0) and its amplitude the light's peak.
+    photo = decompose(scene, cam, 1)
+    peak = np.unravel_index(np.argmax(photo["input"].mean(2)), photo["share"].shape[:2])
+    assert photo["share"][peak].min() > 0.9
+    d = np.array([(peak[1] - cam.cx) / cam.fx, (peak[0] - cam.cy) / cam.fy, 1.0])
+    w0 = -d / np.linalg.norm(d)
+    assert float(fields[peak][0:3] @ w0) > 0.999
+    assert np.allclose(fields[peak][4:7], photo["input"][peak], rtol=0.2)
+    assert 1.0 <= fields[..., 3].min() and fields[..., 3].max() <= 2.0e4
+
+
+def test_a_diffuse_floor_has_no_lobes_and_no_layer():
+    scene = mirror_scene(f0=0.0)
+    fields = light_lobes(scene, camera(), 2)
+    assert not fields[..., 4:7].any() and not fields[..., 11:14].any()
+    assert not decompose(scene, camera(), 1)["share"].any()
+
+
+def test_linear_clamped_views_keep_the_photo_and_never_remove_more_than_it_has():
+    torch.manual_seed(0)
+    image = torch.rand(1, 3, 8, 8) * 0.9
+    image[..., :4] = 1.0  # the left half clipped
+    rays = torch.cat([torch.rand(1, 2, 8, 8) - 0.5, torch.ones(1, 1, 8, 8)], 1)
+    disparity = torch.full((1, 1, 8, 8), 0.2)
+    w0 = view_directions(disparity, rays, torch.zeros(1, 3))
+    # One lobe per pixel aimed at its own photo's view, a hundred times brighter than white.
+    lobes = torch.cat([w0, torch.full((1, 1, 8, 8), 50.0), torch.full((1, 3, 8, 8), 100.0)], 1)
+    kw = {"domain": "linear-clamped", "head": "lobes"}
+    assert torch.equal(shade_lobes(image, lobes, disparity, rays, torch.zeros(1, 3), **kw), image)
+    away = torch.tensor([[0.3, 0.0, 0.0]])
+    moved = shade_lobes(image, lobes, disparity, rays, away, **kw)
+    g = lobe_sum(lobes, view_directions(disparity, rays, away)) / 100.0
+    # Clipped: the lobe leaves, and only what it still brings is left (clipped at white),
+    # not a hole dug 100 below black. Not clipped: the lobe holds no more than the pixel.
+    linear = image**LINEAR_GAMMA
+    expected = torch.where(image == 1.0, (100.0 * g).clamp(max=1.0), linear * g)
+    assert torch.allclose(moved, expected.clamp(min=1e-4) ** (1 / LINEAR_GAMMA), atol=1e-5)
+    plain = shade_lobes(image, lobes, disparity, rays, away, domain="linear")
+    assert (plain <= moved + 1e-6).all() and (plain < moved - 0.01).any()
+
+
+def test_linear_clamped_amplitudes_start_faint_and_stay_positive():
+    field = LobeField(1, "lobes", "linear-clamped")
+    rays = torch.cat([torch.zeros(1, 2, 4, 4), torch.ones(1, 1, 4, 4)], 1)
+    out = field(torch.zeros(1, 7, 4, 4), rays)
+    assert torch.allclose(out[:, 4:7], torch.full_like(out[:, 4:7], AMPLITUDE_INIT), rtol=1e-4)
+    far = field(torch.full((1, 7, 4, 4), -50.0), rays)[:, 4:7]
+    bright = field(torch.full((1, 7, 4, 4), 50.0), rays)[:, 4:7]
+    assert (far > 0).all() and far.max() < 1e-5 and bright.min() > 1e3
+    assert AMPLITUDE_INIT < AMPLITUDE_SEEN
+
+
+def test_hdr_fields_are_tone_mapped_with_the_sample():
+    fields = np.zeros((2, 2, 11), np.float32)
+    fields[..., 4:7] = 0.1  # a lobe of HDR peak 0.1
+    fields[0, 0, 4:7] = 50.0  # and a clipped one
+    fields[..., 7:10] = 0.5  # half the light slides
+    hdr = np.full((2, 2, 3), 0.1, np.float32)
+    t = FieldTargets(fields, 1, hdr=True).tone_mapped(hdr, 5.0, 2.2)
+    assert np.allclose(t.fields[1, 1, 4:7], 0.5)  # exposure x peak at gamma 2.2
+    assert np.allclose(t.fields[0, 0, 4:7], 250.0)
+    # The display share of the layer: 1 - (0.5 * 0.5)^(1/2.2) / 0.5^(1/2.2)
+    assert np.allclose(t.fields[1, 1, 7:10], 1 - 0.5 ** (1 / 2.2), atol=1e-5)
+    gamma4 = FieldTargets(fields, 1, hdr=True).tone_mapped(hdr, 5.0, 4.0)
+    assert np.allclose(gamma4.fields[1, 1, 4:7], 0.5 ** (2.2 / 4.0))
+    assert FieldTargets(fields, 1).tone_mapped(hdr, 5.0, 2.2) is not None
+    assert np.array_equal(FieldTargets(fields, 1).tone_mapped(hdr, 5.0, 2.2).fields, fields)
+
+
+def test_log_amplitude_distance_is_zero_at_the_teacher_and_bounded():
+    torch.manual_seed(0)
+    t = torch.rand(2, 7, 8, 8)
+    t[:, 0:3] = t[:, 0:3] / t[:, 0:3].norm(dim=1, keepdim=True)
+    t[:, 3:4] = 10.0
+    t[:, 4:7] = 10.0 ** torch.empty(2, 3, 8, 8).uniform_(-4, 4)
+    assert float(field_loss(t, t, 1, log_amplitude=True)) == pytest.approx(0.0, abs=1e-6)
+    far = t.clone()
+    far[:, 4:7] = 1e9
+    assert float(field_loss(far, t, 1, log_amplitude=True)) <= 1.0 + 2.0
+    # Below the starting amplitude nothing pulls a lobe further down.
+    faint, fainter = t.clone(), t.clone()
+    faint[:, 4:7], fainter[:, 4:7] = 1e-3, 1e-4
+    zero = t.clone()
+    zero[:, 4:7] = 0.0
+    assert float(field_loss(faint, zero, 1, log_amplitude=True)) == pytest.approx(0.0, abs=1e-6)
+    assert float(field_loss(fainter, zero, 1, log_amplitude=True)) == pytest.approx(0.0, abs=1e-6)
+    # ... and a lobe too faint still climbs towards a teacher's bright one.
+    fainter.requires_grad_(True)
+    field_loss(fainter, t, 1, log_amplitude=True).backward()
+    lit = t[:, 4:7] > 1e-3
+    assert (fainter.grad[:, 4:7][lit] < 0).all() and (fainter.grad[:, 4:7][~lit] == 0).all()
+
+
+@pytest.fixture(scope="module")
+def renderer_fields(tmp_path_factory):
+    root = tmp_path_factory.mktemp("renderer")
+    data = root / "analytic"
+    argv = ["render", "--scenes", "analytic", "--out", str(data), "--count", "3"]
+    assert main([*argv, "--size", "32x32", "--spp", "1", "--targets", "2", "--seed", "7"]) == 0
+    fields = root / "lobes"
+    argv = ["teacher", "--source", "renderer", "--head", "lobes", "--lobes", "2"]
+    assert main([*argv, "--data", str(data), "--out", str(fields)]) == 0
+    return data, fields
+
+
+def test_renderer_teacher_writes_hdr_lobes_for_the_clamped_domain(renderer_fields):
+    data, fields = renderer_fields
+    settings = json.loads((fields / "teacher.json").read_text())
+    assert settings == {
+        "head": "lobes",
+        "lobes": 2,
+        "source": "renderer",
+        "units": "hdr",
+        "domain": "linear-clamped",
+    }
+    names = sorted(p.name for p in data.iterdir() if (p / "meta.json").exists())
+    a = np.load(fields / f"{names[0]}.npy")
+    assert a.dtype == np.float16 and a.shape == (14, 32, 32)
+    ex = load_example(data / names[0])
+    ex.teacher = FieldTargets(a.astype(np.float32).transpose(1, 2, 0), 2, hdr=True)
+    s = make_sample(ex, crop=None, rng=None, aug=None, targets=2)
+    assert s["teacher"].shape == (14, 32, 32) and torch.isfinite(s["teacher"]).all()
+
+
+def test_renderer_teacher_refuses_examples_it_did_not_render(renderer_fields, tmp_path, capsys):
+    data, _ = renderer_fields
+    name = sorted(p.name for p in data.iterdir() if (p / "meta.json").exists())[0]
+    argv = ["teacher", "--source", "renderer", "--head", "lobes", "--out", str(tmp_path / "f")]
+    for change, says in (("family", "not an analytic example"), ("seed", "does not draw again")):
+        copy = tmp_path / change
+        shutil.copytree(data / name, copy / name)
+        meta = json.loads((copy / name / "meta.json").read_text())
+        if change == "family":
+            meta["scene"]["family"] = "highlights"
+        else:
+            meta["seed"] += 1
+        (copy / name / "meta.json").write_text(json.dumps(meta))
+        assert main([*argv, "--data", str(copy)]) == 1
+        assert says in capsys.readouterr().err
+        assert not list((tmp_path / "f").glob("*.npy"))
+
+
+def test_train_with_renderer_lobes_needs_their_domain(renderer_fields, tmp_path, capsys):
+    data, fields = renderer_fields
+    argv = ["train", "--data", str(data), "--run-dir", str(tmp_path / "run"), "--size", TINY,
+            "--steps", "2", "--batch-size", "2", "--crop", "32", "--workers", "0",
+            "--threads", "1", "--log-every", "1", "--no-progress", "--head", "lobes",
+            "--lobes", "2", "--loss-weights", "1,0,0", "--targets-per-example", "2",
+            "--teacher", str(fields)]  # fmt: skip
+    assert main(argv) != 0
+    assert "--lobe-domain linear-clamped" in capsys.readouterr().err
+    assert main([*argv, "--lobe-domain", "linear-clamped"]) == 0
+    with open(tmp_path / "run" / "log.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
+    assert len(rows) == 2 and all(math.isfinite(float(r["teacher"])) for r in rows)
+
+
+def test_teacher_check_reads_a_lobes_network_against_the_renderer(
+    renderer_fields, tmp_path, capsys
+):
+    from dataclasses import replace
+
+    from reshader_train.model import ReshadeNet, net_config
+
+    data, fields = renderer_fields
+    cfg = replace(net_config(TINY), head="lobes", lobes=2, domain="linear-clamped")
+    ckpt = tmp_path / "lobes.pt"
+    torch.save({"model": ReshadeNet(cfg).state_dict(), "net_config": cfg.to_json()}, ckpt)
+    out = tmp_path / "check.json"
+    argv = ["teacher-check", "--checkpoint", str(ckpt), "--data", str(data), "--teacher",
+            str(fields), "--json", str(out)]  # fmt: skip
+    assert main(argv) == 0
+    assert "with a lit teacher" in capsys.readouterr().out
+    means = json.loads(out.read_text())["means"]
+    # An untrained network's lobes are all at the starting amplitude, below what a view shows.
+    assert means["network_amplitude_lit"] == pytest.approx(math.log10(AMPLITUDE_INIT), abs=0.01)
+    assert means["teacher_amplitude_lit"] > math.log10(AMPLITUDE_SEEN)
+    assert 0 < means["lit_share"] <= 1

@@ -69,6 +69,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "fields for --lobe-domain linear-clamped) (default fit)",
     )
     p.add_argument(
+        "--normals",
+        default="surface",
+        choices=("surface", "depth"),
+        help="--source renderer --head lobes: mirror each light about the surface's normal, "
+        "or about the depth map's (what a head given the light's direction could do from "
+        "the depth alone) (default surface)",
+    )
+    p.add_argument(
         "--shard",
         default="0/1",
         help="I/N: fit every N-th example from the I-th, to run N processes (default 0/1)",
@@ -88,13 +96,14 @@ def parse_shard(text: str) -> tuple[int, int]:
 def settings(args: argparse.Namespace) -> dict:
     if args.source == "renderer":
         domain = "linear-clamped" if args.head == "lobes" else "display"
-        return {
+        told = {
             "head": args.head,
             "lobes": args.lobes,
             "source": "renderer",
             "units": "hdr",
             "domain": domain,
         }
+        return {**told, "normals": "depth"} if args.normals == "depth" else told
     return {
         "head": args.head,
         "lobes": args.lobes,
@@ -136,7 +145,7 @@ F16_MAX = 6.0e4
 def example_fields(args: argparse.Namespace, folder: Path, ex) -> tuple[np.ndarray, float | None]:
     """The example's fields (C, H, W) as stored, and what they gain on its cameras."""
     if args.source == "renderer":
-        fields = renderer_fields(folder, ex, args.head, args.lobes)
+        fields = renderer_fields(folder, ex, args.head, args.lobes, args.normals)
         told = FieldTargets(fields.transpose(1, 2, 0), args.lobes, hdr=True)
         ex.teacher = told
         sample = make_sample(ex, crop=None, rng=None, aug=None, targets=ex.target_count)
@@ -157,7 +166,9 @@ def example_fields(args: argparse.Namespace, folder: Path, ex) -> tuple[np.ndarr
     return fitted[0].numpy(), fitted_gain(args.head, sample, fitted)
 
 
-def renderer_fields(folder: Path, ex, head: str, lobes: int) -> np.ndarray:
+def renderer_fields(
+    folder: Path, ex, head: str, lobes: int, normals: str = "surface"
+) -> np.ndarray:
     """The analytic renderer's fields (C, H, W) for example `folder` (HDR, see
     FieldTargets), its scene drawn again from the seed and index in its meta.json."""
     from .render.analytic import make_example
@@ -177,7 +188,7 @@ def renderer_fields(folder: Path, ex, head: str, lobes: int) -> np.ndarray:
     lit = truth["input"].mean(2) > 1e-6
     scale = float(np.median(ex.input[lit].astype(np.float32) / truth["input"][lit]))
     if head == "lobes":
-        fields = light_lobes(scene, cam, lobes)
+        fields = light_lobes(scene, cam, lobes, normals)
         for j in range(lobes):
             fields[..., 7 * j + 4 : 7 * j + 7] *= scale
     else:

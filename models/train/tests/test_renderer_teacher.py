@@ -228,3 +228,30 @@ def test_teacher_check_reads_a_lobes_network_against_the_renderer(
     assert means["network_amplitude_lit"] == pytest.approx(math.log10(AMPLITUDE_INIT), abs=0.01)
     assert means["teacher_amplitude_lit"] > math.log10(AMPLITUDE_SEEN)
     assert 0 < means["lit_share"] <= 1
+
+
+def test_depth_normals_of_a_plane_are_its_normal_and_face_the_camera():
+    from reshader_train.render.decompose import depth_normals
+
+    ys, xs = np.mgrid[0:5, 0:6].astype(np.float64)
+    normal = np.array([0.3, -0.2, 1.0]) / np.linalg.norm([0.3, -0.2, 1.0])
+    # The plane n . p = 4, parametrised over x and y.
+    points = np.stack([xs, ys, (4 - normal[0] * xs - normal[1] * ys) / normal[2]], -1)
+    n = depth_normals(points.reshape(-1, 3), 5, 6, np.array([0.0, 0.0, 100.0]))
+    assert np.allclose(n, normal, atol=1e-9)
+    away = depth_normals(points.reshape(-1, 3), 5, 6, np.array([0.0, 0.0, -100.0]))
+    assert np.allclose(away, -normal, atol=1e-9)
+
+
+def test_a_flat_floor_mirrors_the_same_about_its_depth_as_about_its_surface():
+    scene, cam = mirror_scene(), camera()
+    assert np.allclose(light_lobes(scene, cam, 1, "depth"), light_lobes(scene, cam, 1), atol=1e-4)
+
+
+def test_renderer_teacher_says_which_normals_it_mirrored_about(renderer_fields, tmp_path):
+    data, _ = renderer_fields
+    out = tmp_path / "depth"
+    argv = ["teacher", "--source", "renderer", "--head", "lobes", "--normals", "depth"]
+    assert main([*argv, "--data", str(data), "--out", str(out)]) == 0
+    assert json.loads((out / "teacher.json").read_text())["normals"] == "depth"
+    assert len(list(out.glob("*.npy"))) == 3

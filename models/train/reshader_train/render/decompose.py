@@ -97,11 +97,15 @@ def _sample_rho(scene: dict, surf: Surface, t: np.ndarray, eye: np.ndarray):
     return spec, np.where(weight > DARK, rho / np.maximum(weight, DARK), 0.0), weight
 
 
-def _lobes_of_lights(scene: dict, surf: Surface, eye: np.ndarray, rotation: np.ndarray):
+def _lobes_of_lights(
+    scene: dict, surf: Surface, eye: np.ndarray, rotation: np.ndarray, mirror: np.ndarray
+):
     """Per SG light, (axis in the camera frame, sharpness, HDR amplitude, its value at the
-    best view within REACH) at the glossy samples of `surf`, seen from `eye`."""
+    best view within REACH) at the glossy samples of `surf`, seen from `eye`; the axis is
+    the light mirrored about `mirror` (a unit normal per sample of `surf`)."""
     sel = surf.glossy
     p, n, alpha, f0 = surf.points[sel], surf.normal[sel], surf.alpha[sel], surf.f0[sel]
+    about = mirror[sel]
     rows = np.searchsorted(np.flatnonzero(surf.surface), np.flatnonzero(sel))
     v = eye - p
     v /= np.linalg.norm(v, axis=1, keepdims=True)
@@ -118,7 +122,7 @@ def _lobes_of_lights(scene: dict, surf: Surface, eye: np.ndarray, rotation: np.n
     out = []
     for g, vis in zip(scene["lobes"], surf.light_vis, strict=True):
         axis = np.asarray(g["axis"], dtype=np.float64)
-        m = 2 * (n @ axis)[:, None] * n - axis
+        m = 2 * (about @ axis)[:, None] * about - axis
         c0 = np.clip(np.einsum("ij,ij->i", v, m), -1, 1)
         lam = g["sharpness"]
         # The reflection as a function of c = v . m, matched in value and log-slope at the
@@ -138,10 +142,25 @@ def _lobes_of_lights(scene: dict, surf: Surface, eye: np.ndarray, rotation: np.n
     return out
 
 
-def light_lobes(scene: dict, cam: Camera, count: int) -> np.ndarray:
+def depth_normals(points: np.ndarray, height: int, width: int, towards: np.ndarray):
+    """Unit normals (H*W, 3) of a grid of 3-D points (H*W, 3) from the cross product of
+    central differences (one-sided at the border), turned to face `towards`: what a depth
+    map alone tells of the surfaces, wrong across its edges."""
+    g = points.reshape(height, width, 3)
+    dx = np.gradient(g, axis=1) if width > 1 else np.zeros_like(g)
+    dy = np.gradient(g, axis=0) if height > 1 else np.zeros_like(g)
+    n = np.cross(dx, dy).reshape(-1, 3)
+    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+    return np.where((np.einsum("ij,ij->i", n, towards - points) < 0)[:, None], -n, n)
+
+
+def light_lobes(scene: dict, cam: Camera, count: int, normals: str = "surface") -> np.ndarray:
     """(H, W, 7 count) "lobes" head fields at the pixel centres, LobeField's layout per
     lobe (axis in the camera frame, sharpness, HDR amplitude), the `count` lights whose
-    reflection is brightest within REACH first. Pixels with fewer get zero lobes."""
+    reflection is brightest within REACH first. Pixels with fewer get zero lobes.
+    `normals` "depth": each light is mirrored about the depth map's normal instead of the
+    surface's (`depth_normals`): the axes a head that mirrors a known light about the
+    depth map would get."""
     d, _ = camera_rays(cam, np.zeros((1, 2)))
     o = np.broadcast_to(cam.centre, d.shape)
     hits = intersect(scene, o, d)
@@ -150,7 +169,13 @@ def light_lobes(scene: dict, cam: Camera, count: int) -> np.ndarray:
     fields = np.zeros((len(d), count, 7))
     fields[:, :, 0:3] = -(d @ cam.rotation)[:, None, :]  # towards the camera: w0
     fields[:, :, 3] = 1.0
-    lights = _lobes_of_lights(scene, surf, cam.centre, cam.rotation) if surf.glossy.any() else []
+    mirror = surf.normal
+    if normals == "depth":
+        points = np.where(np.isfinite(hits.t)[:, None], surf.points, o + d * 1e6)
+        mirror = depth_normals(points, cam.height, cam.width, cam.centre)
+    lights = []
+    if surf.glossy.any():
+        lights = _lobes_of_lights(scene, surf, cam.centre, cam.rotation, mirror)
     if lights:
         rank = np.argsort(-np.stack([seen for *_, seen in lights]), axis=0, kind="stable")
         rows = np.flatnonzero(surf.glossy)

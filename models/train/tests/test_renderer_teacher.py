@@ -9,6 +9,7 @@ import shutil
 import numpy as np
 import pytest
 import torch
+from conftest import check_untrained
 from test_train import TINY
 
 from reshader_train.cli import main
@@ -144,12 +145,10 @@ def test_log_amplitude_distance_is_zero_at_the_teacher_and_bounded():
 
 
 @pytest.fixture(scope="module")
-def renderer_fields(tmp_path_factory):
-    root = tmp_path_factory.mktemp("renderer")
-    data = root / "analytic"
-    argv = ["render", "--scenes", "analytic", "--out", str(data), "--count", "3"]
-    assert main([*argv, "--size", "32x32", "--spp", "1", "--targets", "2", "--seed", "7"]) == 0
-    fields = root / "lobes"
+def renderer_fields(analytic, tmp_path_factory):
+    """test_teacher's analytic examples and the renderer's two lobes for each."""
+    data, _ = analytic
+    fields = tmp_path_factory.mktemp("renderer") / "lobes"
     argv = ["teacher", "--source", "renderer", "--head", "lobes", "--lobes", "2"]
     assert main([*argv, "--data", str(data), "--out", str(fields)]) == 0
     return data, fields
@@ -212,18 +211,13 @@ def test_teacher_check_reads_a_lobes_network_against_the_renderer(
 ):
     from dataclasses import replace
 
-    from reshader_train.model import ReshadeNet, net_config
+    from reshader_train.model import net_config
 
     data, fields = renderer_fields
     cfg = replace(net_config(TINY), head="lobes", lobes=2, domain="linear-clamped")
-    ckpt = tmp_path / "lobes.pt"
-    torch.save({"model": ReshadeNet(cfg).state_dict(), "net_config": cfg.to_json()}, ckpt)
-    out = tmp_path / "check.json"
-    argv = ["teacher-check", "--checkpoint", str(ckpt), "--data", str(data), "--teacher",
-            str(fields), "--json", str(out)]  # fmt: skip
-    assert main(argv) == 0
+    _, report = check_untrained(cfg, data, fields, tmp_path)
     assert "with a lit teacher" in capsys.readouterr().out
-    means = json.loads(out.read_text())["means"]
+    means = report["means"]
     # An untrained network's lobes are all at the starting amplitude, below what a view shows.
     assert means["network_amplitude_lit"] == pytest.approx(math.log10(AMPLITUDE_INIT), abs=0.01)
     assert means["teacher_amplitude_lit"] > math.log10(AMPLITUDE_SEEN)

@@ -5,6 +5,7 @@ import math
 import numpy as np
 import pytest
 import torch
+from conftest import check_untrained
 from test_data import fake_example
 from test_train import TINY
 
@@ -18,19 +19,6 @@ from reshader_train.data import (
 )
 from reshader_train.losses import field_loss, fraction_distance
 from reshader_train.synthetic import write_dataset
-
-
-@pytest.fixture(scope="module")
-def analytic(tmp_path_factory):
-    """Three analytic examples with three targets each (32x32) and their fitted fields."""
-    root = tmp_path_factory.mktemp("teach")
-    data = root / "analytic"
-    argv = ["render", "--scenes", "analytic", "--out", str(data), "--count", "3"]
-    assert main([*argv, "--size", "32x32", "--spp", "1", "--targets", "3", "--seed", "5"]) == 0
-    fields = root / "fields"
-    argv = ["teacher", "--data", str(data), "--out", str(fields), "--steps", "20", "--smooth", "4"]
-    assert main(argv) == 0
-    return data, fields
 
 
 def test_teacher_fits_every_example_once(analytic, capsys):
@@ -219,14 +207,8 @@ def test_teacher_check_compares_a_sliding_network_with_its_teacher(analytic, tmp
     from dataclasses import replace
 
     cfg = replace(net_config(TINY), head="lobes-slide", lobes=1)
-    ckpt = tmp_path / "slide.pt"
-    torch.save({"model": ReshadeNet(cfg).state_dict(), "net_config": cfg.to_json()}, ckpt)
-    out = tmp_path / "check.json"
-    argv = ["teacher-check", "--checkpoint", str(ckpt), "--data", str(data), "--teacher",
-            str(fields), "--json", str(out)]  # fmt: skip
-    assert main(argv) == 0
+    argv, report = check_untrained(cfg, data, fields, tmp_path)
     assert "3 examples with a sliding teacher" in capsys.readouterr().out
-    report = json.loads(out.read_text())
     assert len(report["examples"]) == 3
     assert report["means"]["teacher_mean"] == pytest.approx(0.3 * 10 / 32, rel=1e-3)
     # An untrained layer is the same small fraction everywhere.

@@ -67,29 +67,24 @@ pub fn replace_block(text: &str, contents: &str) -> Option<String> {
 
 /// Refuses a file that cannot take the targets, before anything is measured.
 pub fn check(path: &Path) -> Result<(), ReadmeError> {
-    match replace_block(&read(path)?, "") {
-        Some(_) => Ok(()),
-        None => Err(ReadmeError::NoBlock {
-            path: path.to_owned(),
-        }),
-    }
+    filled(path, "").map(drop)
 }
 
 /// Writes `report`'s targets into the block of the Markdown file at `path` (atomically;
 /// the file is left as it was on any error).
 pub fn update(path: &Path, report: &Report, source: &str) -> Result<(), ReadmeError> {
-    let updated = replace_block(&read(path)?, &block(report, source)).ok_or_else(|| {
-        ReadmeError::NoBlock {
-            path: path.to_owned(),
-        }
-    })?;
+    let updated = filled(path, &block(report, source))?;
     crate::io::output::write_atomic(path, updated.as_bytes())?;
     Ok(())
 }
 
-fn read(path: &Path) -> Result<String, ReadmeError> {
-    std::fs::read_to_string(path).map_err(|source| ReadmeError::Read {
+/// The text of the file at `path` with its block holding `contents`.
+fn filled(path: &Path, contents: &str) -> Result<String, ReadmeError> {
+    let text = std::fs::read_to_string(path).map_err(|source| ReadmeError::Read {
         path: path.to_owned(),
         source,
+    })?;
+    replace_block(&text, contents).ok_or_else(|| ReadmeError::NoBlock {
+        path: path.to_owned(),
     })
 }

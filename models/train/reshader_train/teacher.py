@@ -26,6 +26,7 @@ import os
 import statistics
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -147,9 +148,10 @@ def example_fields(args: argparse.Namespace, folder: Path, ex) -> tuple[np.ndarr
     if args.source == "renderer":
         fields = renderer_fields(folder, ex, args.head, args.lobes, args.normals)
         told = FieldTargets(fields.transpose(1, 2, 0), args.lobes, hdr=True)
-        ex.teacher = told
-        sample = make_sample(ex, crop=None, rng=None, aug=None, targets=ex.target_count)
-        ex.teacher = None
+        # The sample carries the fields as the network sees them (tone mapped with it).
+        sample = make_sample(
+            replace(ex, teacher=told), crop=None, rng=None, aug=None, targets=ex.target_count
+        )
         domain = settings(args)["domain"]
         return fields, fitted_gain(args.head, sample, sample["teacher"][None], domain)
     sample = make_sample(ex, crop=None, rng=None, aug=None, targets=ex.target_count)
@@ -172,7 +174,7 @@ def renderer_fields(
     """The analytic renderer's fields (C, H, W) for example `folder` (HDR, see
     FieldTargets), its scene drawn again from the seed and index in its meta.json."""
     from .render.analytic import make_example
-    from .render.decompose import decompose, light_lobes
+    from .render.decompose import decompose, light_lobes, no_lobes
 
     meta = json.loads((folder / "meta.json").read_text())
     if meta.get("scene", {}).get("family") != "analytic":
@@ -192,11 +194,8 @@ def renderer_fields(
         for j in range(lobes):
             fields[..., 7 * j + 4 : 7 * j + 7] *= scale
     else:
-        fields = light_lobes(scene, cam, lobes)
-        fields[..., 4::7] = 0.0
-        fields[..., 5::7] = 0.0
-        fields[..., 6::7] = 0.0
-        fields = np.concatenate([fields, truth["share"], truth["rho"][..., None]], axis=2)
+        layer = [truth["share"], truth["rho"][..., None]]
+        fields = np.concatenate([no_lobes(cam, lobes), *layer], axis=2)
     return np.ascontiguousarray(fields.transpose(2, 0, 1))
 
 

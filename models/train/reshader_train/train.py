@@ -19,6 +19,7 @@ import sys
 import time
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 import torch
@@ -539,12 +540,27 @@ def check_teacher(folder: Path, cfg: NetConfig) -> None:
         )
 
 
+class Teaching(NamedTuple):
+    """How a step tells the network its teacher's fields (`field_loss`'s options)."""
+
+    lobes: int
+    weight: float
+    fraction: str
+    log_amplitude: bool
+
+
 def train_step(
-    model, criterion: ReshadeLoss, opt, batch: dict, lr: float, d: Dist, step: int, teach=None
+    model,
+    criterion: ReshadeLoss,
+    opt,
+    batch: dict,
+    lr: float,
+    d: Dist,
+    step: int,
+    teach: Teaching | None = None,
 ):
-    """One optimiser step. `teach` (lobes, weight, fraction distance, log amplitudes):
-    batches carry fitted fields ("teacher"), and the fields' distance from them
-    (`field_loss`) is added at that weight."""
+    """One optimiser step. `teach`: batches carry fitted fields ("teacher"), and the
+    fields' distance from them (`field_loss`) is added at its weight."""
     for group in opt.param_groups:
         group["lr"] = lr * group.get("lr_scale", 1.0)
     b = {k: v.to(d.device, non_blocking=True) for k, v in batch.items()}
@@ -560,8 +576,8 @@ def train_step(
     else:
         loss, parts = criterion(pred, b["target"], b["mask"], b["image"])
     if teach is not None:
-        taught = field_loss(fields, b["teacher"], teach[0], teach[2], teach[3])
-        loss = loss + teach[1] * taught
+        taught = field_loss(fields, b["teacher"], teach.lobes, teach.fraction, teach.log_amplitude)
+        loss = loss + teach.weight * taught
         parts = {**parts, "loss": float(loss.detach()), "teacher": float(taught.detach())}
     if not torch.isfinite(loss):
         raise FloatingPointError(f"loss is {float(loss)} at step {step}: {parts}")
@@ -651,7 +667,7 @@ def train(args: argparse.Namespace) -> ReshadeNet:
                 break
             lr = lr_at(step, args)
             teach = (
-                (
+                Teaching(
                     args.lobes,
                     teacher_weight_at(step, args),
                     args.teacher_distance,

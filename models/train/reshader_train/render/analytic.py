@@ -231,16 +231,23 @@ def lobe_radiance(lobes: list[dict], d: np.ndarray) -> np.ndarray:
     return out
 
 
-def sg_reflection(
-    g: dict, r: np.ndarray, lobe_sharpness: np.ndarray, cos: np.ndarray | None = None
-) -> np.ndarray:
-    """Integral of SG light g against a normalised SG lobe around r (closed form); with
-    `cos`, for lobes whose axis makes that cosine with the light's instead (r unused)."""
+def sg_reflection(g: dict, r: np.ndarray, lobe_sharpness: np.ndarray) -> np.ndarray:
+    """Integral of SG light g against a normalised SG lobe around r (closed form)."""
     axis, lam = np.asarray(g["axis"]), g["sharpness"]
-    if cos is None:
-        lam_m = np.linalg.norm(lam * axis + lobe_sharpness[:, None] * r, axis=1)
-    else:
-        lam_m = np.sqrt(lam**2 + lobe_sharpness**2 + 2 * lam * lobe_sharpness * cos)
+    lam_m = np.linalg.norm(lam * axis + lobe_sharpness[:, None] * r, axis=1)
+    return _sg_integral(g, lam_m, lobe_sharpness)
+
+
+def sg_reflection_at(g: dict, cos: np.ndarray, lobe_sharpness: np.ndarray) -> np.ndarray:
+    """`sg_reflection` for unit lobe axes making cosine `cos` with the light's axis."""
+    lam = g["sharpness"]
+    lam_m = np.sqrt(lam**2 + lobe_sharpness**2 + 2 * lam * lobe_sharpness * cos)
+    return _sg_integral(g, lam_m, lobe_sharpness)
+
+
+def _sg_integral(g: dict, lam_m: np.ndarray, lobe_sharpness: np.ndarray) -> np.ndarray:
+    """The closed form of `sg_reflection`, given the length of the product SG's axis."""
+    lam = g["sharpness"]
     norm = lobe_sharpness / (2 * math.pi * (1 - np.exp(-2 * lobe_sharpness)))
     value = (
         norm * np.exp(lam_m - lam - lobe_sharpness) * 2 * math.pi / lam_m * (1 - np.exp(-2 * lam_m))
@@ -355,8 +362,10 @@ def _mirrored_objects(scene: dict, p, n, r, alpha, env) -> np.ndarray:
 def _specular(scene: dict, s: Surface, v: np.ndarray):
     """(radiance of the specular layer, its Fresnel factor) at the glossy samples, seen
     along -v."""
-    env, orbs, f = specular_parts(scene, s, v)
-    return env + sum(orbs, np.zeros_like(env)), f
+    out, orbs, f = specular_parts(scene, s, v)
+    for orb in orbs:
+        out += orb
+    return out, f
 
 
 def specular_parts(scene: dict, s: Surface, v: np.ndarray):

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..model import SHARPNESS_RANGE
 from .analytic import (
     EPS,
     TRACE_ROUGHNESS,
@@ -35,7 +36,7 @@ from .analytic import (
     camera_rays,
     fresnel,
     intersect,
-    sg_reflection,
+    sg_reflection_at,
     shade,
     specular_parts,
     subsample_offsets,
@@ -50,9 +51,8 @@ DARK = 1e-6
 # left out (amplitude 0: its axis and sharpness are then free).
 REACH = 0.15
 UNSEEN = 1e-4
-# The lobe heads' sharpness range (model.SHARPNESS_RANGE), and a bound on a lobe's HDR
-# peak (far in a lobe's tail the peak its slope implies is astronomical and irrelevant).
-SHARPNESS = (1.0, 2.0e4)
+# A bound on a lobe's HDR peak: far in a lobe's tail the peak its slope implies is
+# astronomical and irrelevant.
 MAX_AMPLITUDE = 1.0e4
 
 
@@ -78,7 +78,8 @@ def image_rho(t: np.ndarray, k: np.ndarray, u: np.ndarray) -> np.ndarray:
 
 
 def _sample_rho(scene: dict, surf: Surface, t: np.ndarray, eye: np.ndarray):
-    """(specular radiance, rho) of the glossy samples of `surf`, seen from `eye`."""
+    """(specular radiance, rho, the radiance's brightness that weighs rho) of the glossy
+    samples of `surf`, seen from `eye`."""
     sel = surf.glossy
     p, n = surf.points[sel], surf.normal[sel]
     v = eye - p
@@ -130,8 +131,8 @@ def _lobes_of_lights(
         # the slope there, which an SG matched at the peak gets wrong in its tails.
         mixed = np.sqrt(lam**2 + reflect_sharp**2 + 2 * lam * reflect_sharp * c0)
         tail = 2 * np.exp(-2 * mixed) / (1 - np.exp(-2 * mixed))
-        sharp = np.clip(lam * reflect_sharp / mixed * (1 - 1 / mixed + tail), *SHARPNESS)
-        value = sg_reflection(g, p, reflect_sharp, c0)
+        sharp = np.clip(lam * reflect_sharp / mixed * (1 - 1 / mixed + tail), *SHARPNESS_RANGE)
+        value = sg_reflection_at(g, c0, reflect_sharp)
         log_amp = np.log(np.maximum(value, 1e-30)) + (sharp * (1 - c0))[:, None]
         amp = f * np.exp(np.minimum(log_amp, np.log(MAX_AMPLITUDE)))
         amp = amp * (vis[rows] * (1 - blocked))[:, None]
@@ -166,9 +167,7 @@ def light_lobes(scene: dict, cam: Camera, count: int, normals: str = "surface") 
     hits = intersect(scene, o, d)
     t = np.where(np.isfinite(hits.t), hits.t, 0).astype(np.float64)
     surf = Surface(scene, o + d * t[:, None], hits)
-    fields = np.zeros((len(d), count, 7))
-    fields[:, :, 0:3] = -(d @ cam.rotation)[:, None, :]  # towards the camera: w0
-    fields[:, :, 3] = 1.0
+    fields = no_lobes(cam, count).reshape(len(d), count, 7)
     mirror = surf.normal
     if normals == "depth":
         points = np.where(np.isfinite(hits.t)[:, None], surf.points, o + d * 1e6)
@@ -185,7 +184,17 @@ def light_lobes(scene: dict, cam: Camera, count: int, normals: str = "surface") 
                 fields[rows[pick], k] = np.concatenate(
                     [mu[pick], sharp[pick, None], amp[pick]], axis=1
                 )
-    return fields.reshape(cam.height, cam.width, 7 * count).astype(np.float32)
+    return fields.reshape(cam.height, cam.width, 7 * count)
+
+
+def no_lobes(cam: Camera, count: int) -> np.ndarray:
+    """(H, W, 7 count) lobes of amplitude 0, pointing back to the camera (w0) with
+    sharpness 1: the fields of a pixel nothing shines on."""
+    d, _ = camera_rays(cam, np.zeros((1, 2)))
+    fields = np.zeros((len(d), count, 7), np.float32)
+    fields[:, :, 0:3] = -(d @ cam.rotation)[:, None, :]
+    fields[:, :, 3] = 1.0
+    return fields.reshape(cam.height, cam.width, 7 * count)
 
 
 def decompose(scene: dict, cam: Camera, spp: int) -> dict[str, np.ndarray]:

@@ -134,29 +134,33 @@ fn fill_holes(sample: &mut [u32], inv_z: &mut [f32], w: usize, h: usize) {
 }
 
 fn fill_pass(sample: &mut [u32], inv_z: &mut [f32], w: usize, h: usize) {
-    let mut best: Vec<Option<usize>> = vec![None; w * h];
+    // The covered subsample each uncovered one takes, or NONE: u32 indices keep this
+    // scratch a quarter of Option<usize>'s size (a view has far fewer subsamples).
+    const NONE: u32 = u32::MAX;
+    let mut best = vec![NONE; w * h];
     // (first index, stride, length) of every row and column.
     let rows = (0..h).map(|y| (y * w, 1, w));
     let columns = (0..w).map(|x| (x, w, h));
     for (start, stride, len) in rows.chain(columns) {
         for reversed in [false, true] {
-            let mut last: Option<usize> = None;
+            let mut last = NONE;
             for k in 0..len {
                 let i = start + stride * if reversed { len - 1 - k } else { k };
                 if sample[i] != EMPTY {
-                    last = Some(i);
-                } else if let Some(from) = last {
-                    if best[i].is_none_or(|b| inv_z[from] < inv_z[b]) {
-                        best[i] = Some(from);
+                    last = i as u32;
+                } else if last != NONE {
+                    let b = best[i];
+                    if b == NONE || inv_z[last as usize] < inv_z[b as usize] {
+                        best[i] = last;
                     }
                 }
             }
         }
     }
-    for (i, b) in best.iter().enumerate() {
-        if let (EMPTY, Some(from)) = (sample[i], b) {
-            sample[i] = sample[*from];
-            inv_z[i] = inv_z[*from];
+    for (i, &b) in best.iter().enumerate() {
+        if sample[i] == EMPTY && b != NONE {
+            sample[i] = sample[b as usize];
+            inv_z[i] = inv_z[b as usize];
         }
     }
 }

@@ -98,6 +98,9 @@ fn nearest_existing(dir: &Path) -> PathBuf {
     }
 }
 
+/// The name of [`probe`]'s file, before the process id.
+const PROBE_PREFIX: &str = ".reshader-probe.tmp-";
+
 /// Whether a new file can be created in `dir` (created and removed at once): the test
 /// that holds for root, read-only mounts and pseudo file systems alike, unlike the
 /// permission bits.
@@ -105,7 +108,7 @@ fn probe(dir: &Path) -> Result<(), String> {
     if !dir.is_dir() {
         return Err(format!("{} is not a directory", dir.display()));
     }
-    let path = dir.join(format!(".reshader-probe.tmp-{}", std::process::id()));
+    let path = dir.join(format!("{PROBE_PREFIX}{}", std::process::id()));
     match fs::OpenOptions::new()
         .write(true)
         .create_new(true)
@@ -465,8 +468,8 @@ fn staging_prefix(out_dir: &Path) -> String {
 
 /// Finishes or discards what runs killed while writing `out_dir` left behind: a staging
 /// directory with a commit list is moved in (the run had staged everything), one without
-/// is deleted (the destination still holds the earlier output). Staging directories of
-/// live processes are left alone.
+/// is deleted (the destination still holds the earlier output), and so are a dead run's
+/// temporary and probe files. Staging directories of live processes are left alone.
 pub fn recover(out_dir: &Path) -> Result<(), OutputError> {
     let prefix = staging_prefix(out_dir);
     let Ok(entries) = fs::read_dir(parent_dir(out_dir)) else {
@@ -498,7 +501,25 @@ pub fn recover(out_dir: &Path) -> Result<(), OutputError> {
         })?;
     }
     remove_dead_temporaries(out_dir);
+    remove_dead_probes(&parent_dir(out_dir));
     Ok(())
+}
+
+/// Deletes the probe files of processes killed between creating and removing one
+/// ([`probe`] runs in the output's parent as well as in the output itself).
+fn remove_dead_probes(dir: &Path) {
+    let Ok(entries) = fs::read_dir(dir) else {
+        return;
+    };
+    for entry in entries.flatten() {
+        let name = entry.file_name().to_string_lossy().into_owned();
+        let pid = name
+            .strip_prefix(PROBE_PREFIX)
+            .and_then(|pid| pid.parse::<i32>().ok());
+        if pid.is_some_and(|pid| !process_alive(pid)) {
+            let _ = fs::remove_file(entry.path());
+        }
+    }
 }
 
 /// Deletes `.<name>.tmp-<pid>` files (see [`write_atomic`]) of processes that died

@@ -169,3 +169,25 @@ fn pngs_encoded_in_parallel_decode_to_their_images_in_order() {
         assert_eq!(&decoded, image);
     }
 }
+
+#[test]
+fn recovery_removes_a_dead_runs_probe_beside_the_output() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("photo");
+    // No process has this id: kill(2) takes ids up to the kernel's pid_max (2^22).
+    let dead = dir.path().join(format!("{PROBE_PREFIX}{}", i32::MAX));
+    let live = dir
+        .path()
+        .join(format!("{PROBE_PREFIX}{}", std::process::id()));
+    let other = dir.path().join(".notes.tmp-2147483647");
+    for f in [&dead, &live, &other] {
+        fs::write(f, b"").unwrap();
+    }
+    recover(&out).unwrap();
+    assert!(!dead.exists());
+    assert!(live.exists(), "a running process's probe stays");
+    assert!(
+        other.exists(),
+        "only our probes are touched beside the output"
+    );
+}

@@ -204,6 +204,24 @@ fn reduced_working_resolution_keeps_the_photo_size_and_detail() {
 }
 
 #[test]
+fn a_longest_side_limit_is_the_same_reduction_as_the_scale_it_implies() {
+    let (image, _) = scene(96, 64);
+    let options = |scale, max_side| NetOptions {
+        scale,
+        max_side,
+        ..Default::default()
+    };
+    let half = reshade(&split(1, options(0.5, None)), &image, &[CAMERA]);
+    let limited = reshade(&split(1, options(1.0, Some(48))), &image, &[CAMERA]);
+    assert_eq!(half, limited);
+    // A limit above the photo's size leaves it at its own size, as no limit does.
+    let full = reshade(&split(1, options(1.0, None)), &image, &[CAMERA]);
+    let roomy = reshade(&split(1, options(1.0, Some(500))), &image, &[CAMERA]);
+    assert_eq!(full, roomy);
+    assert_ne!(full, half);
+}
+
+#[test]
 fn far_cameras_are_reshaded_at_the_trained_distance() {
     let (image, _) = scene(64, 32);
     let net = split(1, NetOptions::default());

@@ -291,6 +291,25 @@ fn malformed_camera_is_a_usage_error() {
 }
 
 #[test]
+fn a_zero_network_size_is_a_usage_error() {
+    let case = Case::new();
+    let out = case.path("view.png");
+    let result = run(&[
+        "view",
+        &case.photo,
+        "--depth",
+        &case.depth,
+        "--reshade-size",
+        "0",
+        "--out",
+        &out,
+    ]);
+    assert_eq!(result.status.code(), Some(2));
+    assert!(stderr(&result).contains("neither `full` nor a size in pixels"));
+    assert!(!std::path::Path::new(&out).exists());
+}
+
+#[test]
 fn weave_with_missing_view() {
     let case = Case::new();
     let views = case.dir.path().join("bad-views");

@@ -197,6 +197,22 @@ pub fn parse_key_views(s: &str) -> Result<KeyViews, String> {
     }
 }
 
+/// `--reshade-size`: a longest side in pixels, or None for `full`.
+#[derive(Clone, Copy, Debug)]
+pub struct ReshadeSize(pub Option<usize>);
+
+pub fn parse_reshade_size(s: &str) -> Result<ReshadeSize, String> {
+    if s == "full" {
+        return Ok(ReshadeSize(None));
+    }
+    match s.parse::<usize>() {
+        Ok(px) if px >= 1 => Ok(ReshadeSize(Some(px))),
+        _ => Err(format!(
+            "`{s}` is neither `full` nor a size in pixels of at least 1 (the network's longest side)"
+        )),
+    }
+}
+
 /// Parses the precision of the depth models (only int8 and fp32 are shipped).
 pub fn parse_depth_precision(s: &str) -> Result<Precision, String> {
     match s.parse::<Precision>()? {
@@ -229,6 +245,14 @@ pub struct ReshadeArgs {
     /// residual is upsampled to full resolution.
     #[arg(long, default_value_t = 1.0)]
     pub reshade_scale: f64,
+    /// The network's working resolution at most this many pixels on its longest side
+    /// (the photo is shrunk for the network and the residual upsampled), or `full`: the
+    /// photo's working size. The shipped model, trained on 128-pixel scenes, gains twice
+    /// as much where shading changes at 256 px as at 640 px on rendered scenes, and a 12 MP
+    /// photo's Portrait views decode about eight times faster (docs/reshading.md,
+    /// "Working size").
+    #[arg(long, value_name = "PX|full", default_value = "256", value_parser = parse_reshade_size)]
+    pub reshade_size: ReshadeSize,
     /// Run the network for this many views (the outermost two among them) and blend the
     /// residual of the others from the two key views beside them, or `all` to run it for
     /// every view (several times slower; the blend costs nothing measurable on rendered
@@ -260,6 +284,7 @@ impl ReshadeArgs {
             precision: self.precision,
             engine: self.engine.clone(),
             scale: self.reshade_scale,
+            max_side: self.reshade_size.0,
             key_views: self.key_views.0,
             batch: self.reshade_batch,
             parallel_views: self.parallel_views,

@@ -328,7 +328,7 @@ fn precision_table(
     for name in config.engines.iter().filter(|_| residual) {
         let engine = engine::by_name(name, config.threads)?;
         for &precision in &config.precisions {
-            let net = match load(config, &engine, precision, NetOptions::default()) {
+            let net = match load(config, &engine, precision, at_full_size()) {
                 Ok(net) => net,
                 Err(e) => {
                     rows.push(format!("| {name} | {precision} | failed: {e} | | | |"));
@@ -397,7 +397,7 @@ fn lobe_rows(
             if !has_precision {
                 continue;
             }
-            let timed = LobeReshader::load(model, precision, engine.clone(), NetOptions::default())
+            let timed = LobeReshader::load(model, precision, engine.clone(), at_full_size())
                 .map_err(ReshadeBenchError::from)
                 .and_then(|net| time_lobe_views(&net, image, depth, centres));
             rows.push(match timed {
@@ -441,7 +441,7 @@ fn profile_table(
     let precision = config.precisions[0];
     let tract = engine::tract::TractEngine::new(config.threads);
     let engine: Arc<dyn Engine> = Arc::new(engine::tract::TractEngine::new(config.threads));
-    let net = load(config, &engine, precision, NetOptions::default())?;
+    let net = load(config, &engine, precision, at_full_size())?;
     let prepared = net.prepare_photo(image, depth)?;
     let ops = prepared.profile(&tract, [0.2, 0.0, 0.0])?;
     let total: f64 = ops.iter().map(|(_, ms)| ms).sum();
@@ -468,7 +468,7 @@ fn options_table(
     let single: Arc<dyn Engine> = Arc::new(engine::tract::TractEngine::new(1));
     let base = NetOptions {
         key_views: None,
-        ..NetOptions::default()
+        ..at_full_size()
     };
     let variants: Vec<(&str, Arc<dyn Engine>, NetOptions)> = vec![
         (
@@ -586,6 +586,15 @@ fn options_table(
         }
     }
     Ok(())
+}
+
+/// The runtime's defaults at the photo's own size: these tables time the network at the
+/// --size asked for, not at the runtime's default longest side.
+fn at_full_size() -> NetOptions {
+    NetOptions {
+        max_side: None,
+        ..NetOptions::default()
+    }
 }
 
 #[cfg(test)]

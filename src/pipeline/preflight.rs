@@ -106,8 +106,8 @@ pub mod factors {
     /// The panel, its lookup table (nearest's; larger tables add their bytes) and PNG, per
     /// panel pixel.
     pub const PANEL: u64 = 9;
-    /// Reshading network activations per working pixel (photo pixels times
-    /// --reshade-scale squared): the encoder's features and one decoder run, the latter
+    /// Reshading network activations per working pixel (the photo's pixels at the size
+    /// --reshade-scale and --reshade-size leave): the encoder's features and one decoder run, the latter
     /// for each view decoded at once (--reshade-batch times --parallel-views).
     pub const NET_FEATURES: u64 = 280;
     pub const NET_PER_VIEW: u64 = 350;
@@ -138,9 +138,9 @@ pub struct RenderSize {
     pub panel_pixels: u64,
     /// Bytes of weaving table per subpixel (1 nearest, 3 linear, 4 Gaussian or dimmed).
     pub table_bytes: u64,
-    /// The reshading network's working scale and views decoded at once; `None`
-    /// without a network.
-    pub network: Option<(f64, u32)>,
+    /// The reshading network's working size and views decoded at once; `None` without
+    /// a network.
+    pub network: Option<NetworkSize>,
     /// Whether the depth network may run.
     pub depth_network: bool,
     /// Reshaded images held at once while the views are relocated (0 without a
@@ -172,16 +172,57 @@ impl MemoryEstimate {
     }
 }
 
-/// The pixels of the photo once fitted to views of `view`: the pipeline shrinks it to
+/// The reshading network's share of a render: the size it runs at (as
+/// `NetOptions::working_size` decides) and how many views it decodes at once.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct NetworkSize {
+    pub scale: f64,
+    pub max_side: Option<usize>,
+    pub at_once: u32,
+}
+
+impl NetworkSize {
+    /// At the photo's full working size, one view at a time.
+    pub const FULL: NetworkSize = NetworkSize {
+        scale: 1.0,
+        max_side: None,
+        at_once: 1,
+    };
+
+    pub fn of(reshade: &crate::reshade::net::choice::ReshadeConfig, at_once: u32) -> Self {
+        NetworkSize {
+            scale: reshade.scale,
+            max_side: reshade.max_side,
+            at_once,
+        }
+    }
+
+    /// The pixels the network works on for a fitted photo of `w`x`h`.
+    fn working_pixels(&self, (w, h): (u64, u64)) -> u64 {
+        let options = crate::reshade::net::NetOptions {
+            scale: if self.scale.is_finite() {
+                self.scale.clamp(0.0, 1.0)
+            } else {
+                1.0
+            },
+            max_side: self.max_side,
+            ..Default::default()
+        };
+        let (ww, wh) = options.working_size(w as usize, h as usize);
+        ww as u64 * wh as u64
+    }
+}
+
+/// The size of the photo once fitted to views of `view`: the pipeline shrinks it to
 /// cover the view when it is larger (see `pipeline::Fitted`).
-fn fitted_pixels((pw, ph): (u32, u32), (vw, vh): (u32, u32)) -> u64 {
+fn fitted_size((pw, ph): (u32, u32), (vw, vh): (u32, u32)) -> (u64, u64) {
     let cover = (f64::from(vw) / f64::from(pw.max(1))).max(f64::from(vh) / f64::from(ph.max(1)));
     if cover < 1.0 {
         let w = (f64::from(pw) * cover).ceil() as u64;
         let h = (f64::from(ph) * cover).ceil() as u64;
-        w.max(1) * h.max(1)
+        (w.max(1), h.max(1))
     } else {
-        u64::from(pw) * u64::from(ph)
+        (u64::from(pw), u64::from(ph))
     }
 }
 
@@ -203,7 +244,8 @@ fn fitted_pixels((pw, ph): (u32, u32), (vw, vh): (u32, u32)) -> u64 {
 pub fn estimate(size: &RenderSize) -> MemoryEstimate {
     use factors::*;
     let photo = u64::from(size.photo.0) * u64::from(size.photo.1);
-    let fitted = fitted_pixels(size.photo, size.view);
+    let fitted_wh = fitted_size(size.photo, size.view);
+    let fitted = fitted_wh.0 * fitted_wh.1;
     let view = u64::from(size.view.0) * u64::from(size.view.1);
     let n = u64::from(size.views);
     let m = |a: u64, b: u64| a.saturating_mul(b);
@@ -221,14 +263,9 @@ pub fn estimate(size: &RenderSize) -> MemoryEstimate {
         ("photo", m(photo, PHOTO)),
         ("fitted photo", m(fitted, FITTED)),
     ];
-    if let Some((scale, at_once)) = size.network {
-        let scale = if scale.is_finite() {
-            scale.clamp(0.0, 1.0)
-        } else {
-            1.0
-        };
-        let working = (fitted as f64 * scale * scale).ceil() as u64;
-        let per_pixel = NET_FEATURES + NET_PER_VIEW * u64::from(at_once.max(1));
+    if let Some(net) = size.network {
+        let working = net.working_pixels(fitted_wh);
+        let per_pixel = NET_FEATURES + NET_PER_VIEW * u64::from(net.at_once.max(1));
         parts.push((
             "reshading network",
             NET_FIXED.saturating_add(m(working, per_pixel)),
@@ -354,7 +391,7 @@ pub fn render_size(
             0
         },
         table_bytes: board.filter().table_bytes_per_subpixel(),
-        network: reshading_on(reshade.model.as_deref()).then_some((reshade.scale, at_once)),
+        network: reshading_on(reshade.model.as_deref()).then(|| NetworkSize::of(reshade, at_once)),
         depth_network,
         reshaded_at_once: if reshading_on(reshade.model.as_deref()) {
             reshaded_at_once(reshade, board.views())
@@ -428,7 +465,8 @@ pub fn single_view_size(
         quilt_pixels: 0,
         panel_pixels: 0,
         table_bytes: 1,
-        network: reshade.and_then(|r| reshading_on(r.model.as_deref()).then_some((r.scale, 1))),
+        network: reshade
+            .and_then(|r| reshading_on(r.model.as_deref()).then(|| NetworkSize::of(r, 1))),
         depth_network,
         reshaded_at_once: 1,
     }
@@ -447,7 +485,7 @@ pub fn depth_network_estimate(reshading: bool) -> MemoryEstimate {
         quilt_pixels: 0,
         panel_pixels: 0,
         table_bytes: 1,
-        network: reshading.then_some((1.0, 1)),
+        network: reshading.then_some(NetworkSize::FULL),
         depth_network: true,
         reshaded_at_once: 0,
     })
@@ -468,7 +506,7 @@ mod tests {
             quilt_pixels: u64::from(cols * vw) * u64::from(rows * vh),
             panel_pixels: u64::from(pw) * u64::from(ph),
             table_bytes: 3,
-            network: networks.then_some((1.0, 1)),
+            network: networks.then_some(NetworkSize::FULL),
             depth_network: networks,
             reshaded_at_once: if networks { 3 } else { 0 },
         }

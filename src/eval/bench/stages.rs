@@ -217,13 +217,16 @@ fn time_reshading(net: &NetReshader, p: &Prepared) -> Result<f64, BenchError> {
 /// The size the network runs at, and the residual's (or the lobe head's change's)
 /// upsampling when it is reduced.
 fn reshade_size(ctx: &Context, ww: u32, wh: u32) -> String {
-    let scale = ctx.reshader.options().scale;
-    if scale < 1.0 {
+    let (nw, nh) = ctx
+        .reshader
+        .options()
+        .working_size(ww as usize, wh as usize);
+    if (nw, nh) != (ww as usize, wh as usize) {
         let what = match ctx.reshader.head() {
             Head::Residual => "residual",
             Head::Lobes => "change",
         };
-        format!("×{scale} of {ww}x{wh} ({what} upsampled)")
+        format!("{nw}x{nh} for {ww}x{wh} ({what} upsampled)")
     } else {
         format!("{ww}x{wh}")
     }

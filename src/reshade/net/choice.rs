@@ -26,6 +26,8 @@ pub struct ReshadeConfig {
     pub engine: String,
     /// Working resolution as a fraction of the photo's.
     pub scale: f64,
+    /// The working resolution's longest side at most this (None: no limit).
+    pub max_side: Option<usize>,
     /// Views the network runs for; the others interpolate (`None`: every view).
     pub key_views: Option<usize>,
     /// Views per decoder call.
@@ -45,6 +47,7 @@ impl Default for ReshadeConfig {
             precision: None,
             engine: "tract".into(),
             scale: 1.0,
+            max_side: Some(super::DEFAULT_MAX_SIDE),
             key_views: Some(super::DEFAULT_KEY_VIEWS),
             batch: 1,
             parallel_views: 1,
@@ -120,6 +123,7 @@ impl ReshadeConfig {
     pub fn options(&self) -> NetOptions {
         NetOptions {
             scale: self.scale,
+            max_side: self.max_side,
             key_views: self.key_views,
             batch: self.batch,
             parallel_views: self.parallel_views,

@@ -496,8 +496,7 @@ impl LobeReshader {
                 camera.fx, camera.fy, camera.cx, camera.cy
             )));
         }
-        let ww = ((w as f64 * self.options.scale).round() as usize).max(1);
-        let wh = ((h as f64 * self.options.scale).round() as usize).max(1);
+        let (ww, wh) = self.options.working_size(w, h);
         let (pw, ph) = (round_up(ww, self.multiple), round_up(wh, self.multiple));
         let full_disparity: Vec<f32> = depth.data().iter().map(|&z| disparity(z)).collect();
         let (work, work_disparity) = if (ww, wh) == (w, h) {
@@ -571,7 +570,7 @@ impl Reshader for LobeReshader {
         let o = &self.options;
         let sha: String = m.sha256.trim().chars().take(12).collect();
         format!(
-            "{} {} ({}, head {}: {} lobes, dead zone {}, graph {sha}, engine {} x{} threads once per photo at scale {}; closed form per view on {} threads{})",
+            "{} {} ({}, head {}: {} lobes, dead zone {}, graph {sha}, engine {} x{} threads once per photo at scale {}, longest side {}; closed form per view on {} threads{})",
             m.name,
             m.version,
             m.precision,
@@ -581,6 +580,7 @@ impl Reshader for LobeReshader {
             self.engine.name(),
             self.engine.threads(),
             o.scale,
+            o.max_side.map_or("unlimited".into(), |m| format!("{m} px")),
             self.threads(),
             o.max_offset
                 .map_or(String::new(), |d| format!(", offsets limited to {d}")),

@@ -48,9 +48,38 @@ fn options_are_checked() {
             key_views: Some(1),
             ..Default::default()
         },
+        NetOptions {
+            max_side: Some(0),
+            ..Default::default()
+        },
     ];
     for o in bad {
         assert!(o.check().is_err(), "{o:?}");
     }
     assert!(NetOptions::default().check().is_ok());
+}
+
+#[test]
+fn the_working_size_fits_the_longest_side_and_the_scale() {
+    let default = NetOptions::default();
+    // A 12 MP photo fitted to the Portrait's views, and the shipped example.
+    assert_eq!(default.working_size(747, 560), (256, 192));
+    assert_eq!(default.working_size(288, 384), (192, 256));
+    assert_eq!(default.working_size(200, 120), (200, 120));
+    let both = NetOptions {
+        scale: 0.25,
+        ..Default::default()
+    };
+    assert_eq!(both.working_size(747, 560), (187, 140));
+    let tenth = NetOptions {
+        scale: 0.1,
+        ..Default::default()
+    };
+    assert_eq!(tenth.working_size(747, 560), (75, 56));
+    let unlimited = NetOptions {
+        max_side: None,
+        ..Default::default()
+    };
+    assert_eq!(unlimited.working_size(747, 560), (747, 560));
+    assert_eq!(default.working_size(4000, 1), (256, 1));
 }

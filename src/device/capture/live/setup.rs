@@ -128,10 +128,12 @@ fn check_memory(args: &LiveConfig, board: &Board, frame: (u32, u32)) -> Result<(
         quilt_pixels: 0,
         panel_pixels: u64::from(pw) * u64::from(ph),
         table_bytes: board.filter().table_bytes_per_subpixel(),
-        network: reshading.then_some((
-            args.reshade.scale,
-            crate::pipeline::preflight::views_at_once(&args.reshade),
-        )),
+        network: reshading.then(|| {
+            crate::pipeline::preflight::NetworkSize::of(
+                &args.reshade,
+                crate::pipeline::preflight::views_at_once(&args.reshade),
+            )
+        }),
         depth_network: depth,
         reshaded_at_once: if reshading {
             crate::pipeline::preflight::reshaded_at_once(&args.reshade, board.views())

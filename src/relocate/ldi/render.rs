@@ -46,6 +46,9 @@ pub(super) fn rasterise(
     let mut sample = vec![EMPTY; w * h];
     for (s, quad) in mesh.samples.iter().enumerate() {
         let [a, b, c, d] = quad.corners.map(|i| projected[i as usize]);
+        if outside([a, b, c, d], w as f32, h as f32) {
+            continue;
+        }
         for tri in [[a, b, c], [b, d, c]] {
             fill_triangle(tri, s as u32, w, h, &mut inv_z, &mut sample);
         }
@@ -67,6 +70,16 @@ pub(super) fn rasterise(
         origin,
         inv_z,
     }
+}
+
+/// Whether a quad lies wholly beyond one side of the `w`x`h` frame, with a pixel's
+/// margin: the photo fitted to cover a view is often wider (or taller) than it, and
+/// such quads cost a triangle setup each for nothing.
+fn outside(q: [[f32; 3]; 4], w: f32, h: f32) -> bool {
+    q.iter().all(|p| p[0] < -1.0)
+        || q.iter().all(|p| p[0] > w + 1.0)
+        || q.iter().all(|p| p[1] < -1.0)
+        || q.iter().all(|p| p[1] > h + 1.0)
 }
 
 /// Screen position and 1/z of every vertex; 1/z = 0 marks a vertex behind the camera
@@ -161,6 +174,41 @@ fn fill_pass(sample: &mut [u32], inv_z: &mut [f32], w: usize, h: usize) {
         if sample[i] == EMPTY && b != NONE {
             sample[i] = sample[b as usize];
             inv_z[i] = inv_z[b as usize];
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::outside;
+
+    #[test]
+    fn only_quads_wholly_beyond_one_side_are_culled() {
+        let quad = |x: f32, y: f32| {
+            [
+                [x, y, 1.0],
+                [x + 2.0, y, 1.0],
+                [x, y + 2.0, 1.0],
+                [x + 2.0, y + 2.0, 1.0],
+            ]
+        };
+        let (w, h) = (100.0, 50.0);
+        for beyond in [
+            quad(-4.0, 10.0),
+            quad(102.0, 10.0),
+            quad(10.0, -4.0),
+            quad(10.0, 52.0),
+        ] {
+            assert!(outside(beyond, w, h), "{beyond:?}");
+        }
+        // Straddling an edge, within the margin, or inside: rasterised.
+        for kept in [
+            quad(-1.5, 10.0),
+            quad(-2.5, 10.0),
+            quad(99.5, 49.5),
+            quad(10.0, 10.0),
+        ] {
+            assert!(!outside(kept, w, h), "{kept:?}");
         }
     }
 }

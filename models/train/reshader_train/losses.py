@@ -253,12 +253,18 @@ def fraction_distance(p: torch.Tensor, t: torch.Tensor, kind: str) -> torch.Tens
     return scale.detach() * ((p - t) ** 2).mean()
 
 
+def _masked_mean(x: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    """The mean of `x` where `mask` holds (0 where it never does)."""
+    return (x * mask).sum() / mask.sum().clamp(min=1)
+
+
 def field_loss(
     fields: torch.Tensor,
     teacher: torch.Tensor,
     lobes: int,
     fraction: str = "l1",
     log_amplitude: bool = False,
+    balance: bool = False,
 ) -> torch.Tensor:
     """How far a lobe head's fields (B,C,H,W) are from fitted ones (`train --teacher`).
 
@@ -272,7 +278,10 @@ def field_loss(
     AMPLITUDE_SEEN (fainter lobes change nothing past the dead zone, so where the teacher
     has none any fainter one will do: a network starts below it, and is pulled down only
     from above it) to the top of LOG_AMPLITUDE_RANGE, and weigh axes and sharpness up to 1
-    (a lobe brighter than white matters as much as a white one)."""
+    (a lobe brighter than white matters as much as a white one). `balance` (with
+    `log_amplitude`): the mean over the teacher's lit amplitudes and the mean over its
+    unlit ones count equally, so that lit pixels, a seventh of the training scenes', are
+    not outvoted by a network that cannot tell the two apart."""
     from .model import AMPLITUDE_SEEN, LOG_AMPLITUDE_RANGE, SHARPNESS_RANGE
 
     span = math.log(SHARPNESS_RANGE[1] / SHARPNESS_RANGE[0])
@@ -291,7 +300,12 @@ def field_loss(
             # Squared: L1's pull is the same for a lobe a hair too bright where the teacher
             # has none as for one a thousand times too faint where it has one, and with
             # most pixels unlit a network sits at the threshold everywhere.
-            total = total + (gap / math.log(hi / lo)).square().mean()
+            sq = (gap / math.log(hi / lo)).square()
+            if balance:
+                lit = t[:, 4:7] > lo
+                total = total + _masked_mean(sq, lit) + _masked_mean(sq, ~lit)
+            else:
+                total = total + sq.mean()
         else:
             total = total + (p[:, 4:7] - t[:, 4:7]).abs().mean()
         total = total + (weight * (1.0 - (p[:, 0:3] * t[:, 0:3]).sum(1, keepdim=True))).mean()

@@ -159,6 +159,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "median's loss, which under-slides where the photo leaves doubt) or squared (the "
         "mean's, scaled to l1's size for a network that slides nothing) (default l1)",
     )
+    p.add_argument(
+        "--teacher-balance",
+        action="store_true",
+        help="lobe amplitudes in the linear-clamped domain: the teacher's lit and unlit "
+        "pixels weigh equally in the fitted-field loss (default: every pixel the same, "
+        "which lets the unlit majority outvote the lit pixels)",
+    )
     p.add_argument("--lr", type=float, default=1e-4)
     p.add_argument("--lr-final", type=float, default=1e-5)
     p.add_argument(
@@ -547,6 +554,7 @@ class Teaching(NamedTuple):
     weight: float
     fraction: str
     log_amplitude: bool
+    balance: bool = False
 
 
 def train_step(
@@ -576,7 +584,9 @@ def train_step(
     else:
         loss, parts = criterion(pred, b["target"], b["mask"], b["image"])
     if teach is not None:
-        taught = field_loss(fields, b["teacher"], teach.lobes, teach.fraction, teach.log_amplitude)
+        taught = field_loss(
+            fields, b["teacher"], teach.lobes, teach.fraction, teach.log_amplitude, teach.balance
+        )
         loss = loss + teach.weight * taught
         parts = {**parts, "loss": float(loss.detach()), "teacher": float(taught.detach())}
     if not torch.isfinite(loss):
@@ -672,6 +682,7 @@ def train(args: argparse.Namespace) -> ReshadeNet:
                     teacher_weight_at(step, args),
                     args.teacher_distance,
                     cfg.domain == "linear-clamped",
+                    args.teacher_balance,
                 )
                 if args.teacher
                 else None

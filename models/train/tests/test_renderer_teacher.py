@@ -144,6 +144,27 @@ def test_log_amplitude_distance_is_zero_at_the_teacher_and_bounded():
     assert (fainter.grad[:, 4:7][lit] < 0).all() and (fainter.grad[:, 4:7][~lit] == 0).all()
 
 
+def test_balanced_amplitudes_weigh_a_few_lit_pixels_as_much_as_the_unlit_rest():
+    """One lit pixel in 64: a network that puts every lobe between the two teachers is
+    pulled up by the balanced distance, down by the plain one."""
+    t = torch.zeros(1, 7, 8, 8)
+    t[:, 2] = 1.0
+    t[:, 3] = 10.0
+    t[:, 4:7, 0, 0] = 1.0
+    guess = t.clone()
+    guess[:, 4:7] = 10.0**-2.0
+    for balance, direction in ((False, 1.0), (True, -1.0)):
+        g = guess.clone().requires_grad_(True)
+        field_loss(g, t, 1, log_amplitude=True, balance=balance).backward()
+        assert float(g.grad[:, 4:7].sum()) * direction > 0
+    # Balanced and plain agree where the teacher lights every pixel.
+    lit = t.clone()
+    lit[:, 4:7] = 1.0
+    plain = field_loss(guess, lit, 1, log_amplitude=True)
+    balanced = field_loss(guess, lit, 1, log_amplitude=True, balance=True)
+    assert float(balanced) == pytest.approx(float(plain))
+
+
 @pytest.fixture(scope="module")
 def renderer_fields(analytic, tmp_path_factory):
     """test_teacher's analytic examples and the renderer's two lobes for each."""

@@ -78,6 +78,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "the depth alone) (default surface)",
     )
     p.add_argument(
+        "--reach",
+        default="view",
+        choices=("view", "surface"),
+        help="--source renderer --head lobes: give a pixel a light's lobe only where the "
+        "light's reflection comes near the photo's view, matched there (view), or on every "
+        "glossy pixel the light reaches, as the lobe is at its peak: amplitude and "
+        "sharpness then belong to the surface and the light (surface) (default view)",
+    )
+    p.add_argument(
         "--shard",
         default="0/1",
         help="I/N: fit every N-th example from the I-th, to run N processes (default 0/1)",
@@ -104,7 +113,11 @@ def settings(args: argparse.Namespace) -> dict:
             "units": "hdr",
             "domain": domain,
         }
-        return {**told, "normals": "depth"} if args.normals == "depth" else told
+        if args.normals == "depth":
+            told["normals"] = "depth"
+        if args.reach == "surface":
+            told["reach"] = "surface"
+        return told
     return {
         "head": args.head,
         "lobes": args.lobes,
@@ -146,7 +159,7 @@ F16_MAX = 6.0e4
 def example_fields(args: argparse.Namespace, folder: Path, ex) -> tuple[np.ndarray, float | None]:
     """The example's fields (C, H, W) as stored, and what they gain on its cameras."""
     if args.source == "renderer":
-        fields = renderer_fields(folder, ex, args.head, args.lobes, args.normals)
+        fields = renderer_fields(folder, ex, args.head, args.lobes, args.normals, args.reach)
         told = FieldTargets(fields.transpose(1, 2, 0), args.lobes, hdr=True)
         # The sample carries the fields as the network sees them (tone mapped with it).
         sample = make_sample(
@@ -169,7 +182,7 @@ def example_fields(args: argparse.Namespace, folder: Path, ex) -> tuple[np.ndarr
 
 
 def renderer_fields(
-    folder: Path, ex, head: str, lobes: int, normals: str = "surface"
+    folder: Path, ex, head: str, lobes: int, normals: str = "surface", reach: str = "view"
 ) -> np.ndarray:
     """The analytic renderer's fields (C, H, W) for example `folder` (HDR, see
     FieldTargets), its scene drawn again from the seed and index in its meta.json."""
@@ -190,7 +203,7 @@ def renderer_fields(
     lit = truth["input"].mean(2) > 1e-6
     scale = float(np.median(ex.input[lit].astype(np.float32) / truth["input"][lit]))
     if head == "lobes":
-        fields = light_lobes(scene, cam, lobes, normals)
+        fields = light_lobes(scene, cam, lobes, normals, reach)
         for j in range(lobes):
             fields[..., 7 * j + 4 : 7 * j + 7] *= scale
     else:

@@ -270,3 +270,23 @@ def test_renderer_teacher_says_which_normals_it_mirrored_about(renderer_fields, 
     assert main([*argv, "--data", str(data), "--out", str(out)]) == 0
     assert json.loads((out / "teacher.json").read_text())["normals"] == "depth"
     assert len(list(out.glob("*.npy"))) == 3
+
+
+def test_lobes_at_their_peaks_cover_the_lit_floor_and_agree_at_the_highlight():
+    scene, cam = mirror_scene(), camera()
+    near = light_lobes(scene, cam, 1)
+    whole = light_lobes(scene, cam, 1, reach="surface")
+    lit_near, lit_whole = near[..., 4:7].mean(2) > 0, whole[..., 4:7].mean(2) > 0
+    assert (lit_whole >= lit_near).all() and lit_whole.sum() > lit_near.sum()
+    # Where the photo sees the peak the two are the same lobe.
+    photo = decompose(scene, cam, 1)
+    peak = np.unravel_index(np.argmax(photo["input"].mean(2)), photo["share"].shape[:2])
+    assert np.allclose(whole[peak], near[peak], rtol=0.05)
+
+
+def test_renderer_teacher_says_how_far_its_lobes_reach(renderer_fields, tmp_path):
+    data, _ = renderer_fields
+    out = tmp_path / "surface"
+    argv = ["teacher", "--source", "renderer", "--head", "lobes", "--reach", "surface"]
+    assert main([*argv, "--data", str(data), "--out", str(out)]) == 0
+    assert json.loads((out / "teacher.json").read_text())["reach"] == "surface"

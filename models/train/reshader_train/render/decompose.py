@@ -99,11 +99,19 @@ def _sample_rho(scene: dict, surf: Surface, t: np.ndarray, eye: np.ndarray):
 
 
 def _lobes_of_lights(
-    scene: dict, surf: Surface, eye: np.ndarray, rotation: np.ndarray, mirror: np.ndarray
+    scene: dict,
+    surf: Surface,
+    eye: np.ndarray,
+    rotation: np.ndarray,
+    mirror: np.ndarray,
+    whole: bool = False,
 ):
     """Per SG light, (axis in the camera frame, sharpness, HDR amplitude, its value at the
     best view within REACH) at the glossy samples of `surf`, seen from `eye`; the axis is
-    the light mirrored about `mirror` (a unit normal per sample of `surf`)."""
+    the light mirrored about `mirror` (a unit normal per sample of `surf`). `whole`: each
+    lobe as it is at its peak (sharpness and amplitude there, whatever the view), on
+    every glossy sample the light reaches: a property of the surface and the light, not
+    of where the photo's camera stands."""
     sel = surf.glossy
     p, n, alpha, f0 = surf.points[sel], surf.normal[sel], surf.alpha[sel], surf.f0[sel]
     about = mirror[sel]
@@ -125,20 +133,22 @@ def _lobes_of_lights(
         axis = np.asarray(g["axis"], dtype=np.float64)
         m = 2 * (about @ axis)[:, None] * about - axis
         c0 = np.clip(np.einsum("ij,ij->i", v, m), -1, 1)
+        at = np.ones_like(c0) if whole else c0
         lam = g["sharpness"]
         # The reflection as a function of c = v . m, matched in value and log-slope at the
         # photo's own view: what moves a highlight's edge (where a bright one clips) is
         # the slope there, which an SG matched at the peak gets wrong in its tails.
-        mixed = np.sqrt(lam**2 + reflect_sharp**2 + 2 * lam * reflect_sharp * c0)
+        mixed = np.sqrt(lam**2 + reflect_sharp**2 + 2 * lam * reflect_sharp * at)
         tail = 2 * np.exp(-2 * mixed) / (1 - np.exp(-2 * mixed))
         sharp = np.clip(lam * reflect_sharp / mixed * (1 - 1 / mixed + tail), *SHARPNESS_RANGE)
-        value = sg_reflection_at(g, c0, reflect_sharp)
-        log_amp = np.log(np.maximum(value, 1e-30)) + (sharp * (1 - c0))[:, None]
+        value = sg_reflection_at(g, at, reflect_sharp)
+        log_amp = np.log(np.maximum(value, 1e-30)) + (sharp * (1 - at))[:, None]
         amp = f * np.exp(np.minimum(log_amp, np.log(MAX_AMPLITUDE)))
         amp = amp * (vis[rows] * (1 - blocked))[:, None]
         nearest = np.cos(np.maximum(np.arccos(c0) - REACH, 0.0))
         seen = np.exp(sharp * (nearest - 1))
-        amp = np.where((seen >= UNSEEN)[:, None], amp, 0.0)
+        if not whole:
+            amp = np.where((seen >= UNSEEN)[:, None], amp, 0.0)
         out.append((m @ rotation, sharp, amp, amp.mean(1) * seen))
     return out
 
@@ -155,13 +165,17 @@ def depth_normals(points: np.ndarray, height: int, width: int, towards: np.ndarr
     return np.where((np.einsum("ij,ij->i", n, towards - points) < 0)[:, None], -n, n)
 
 
-def light_lobes(scene: dict, cam: Camera, count: int, normals: str = "surface") -> np.ndarray:
+def light_lobes(
+    scene: dict, cam: Camera, count: int, normals: str = "surface", reach: str = "view"
+) -> np.ndarray:
     """(H, W, 7 count) "lobes" head fields at the pixel centres, LobeField's layout per
     lobe (axis in the camera frame, sharpness, HDR amplitude), the `count` lights whose
     reflection is brightest within REACH first. Pixels with fewer get zero lobes.
     `normals` "depth": each light is mirrored about the depth map's normal instead of the
     surface's (`depth_normals`): the axes a head that mirrors a known light about the
-    depth map would get."""
+    depth map would get. `reach` "surface": every glossy pixel keeps its lights' lobes as
+    they are at their peaks (`_lobes_of_lights`' `whole`), not only where a light's
+    reflection comes within REACH of the photo's view."""
     d, _ = camera_rays(cam, np.zeros((1, 2)))
     o = np.broadcast_to(cam.centre, d.shape)
     hits = intersect(scene, o, d)
@@ -174,7 +188,9 @@ def light_lobes(scene: dict, cam: Camera, count: int, normals: str = "surface") 
         mirror = depth_normals(points, cam.height, cam.width, cam.centre)
     lights = []
     if surf.glossy.any():
-        lights = _lobes_of_lights(scene, surf, cam.centre, cam.rotation, mirror)
+        lights = _lobes_of_lights(
+            scene, surf, cam.centre, cam.rotation, mirror, whole=reach == "surface"
+        )
     if lights:
         rank = np.argsort(-np.stack([seen for *_, seen in lights]), axis=0, kind="stable")
         rows = np.flatnonzero(surf.glossy)

@@ -508,33 +508,31 @@ pub fn recover(out_dir: &Path) -> Result<(), OutputError> {
 /// Deletes the probe files of processes killed between creating and removing one
 /// ([`probe`] runs in the output's parent as well as in the output itself).
 fn remove_dead_probes(dir: &Path) {
-    let Ok(entries) = fs::read_dir(dir) else {
-        return;
-    };
-    for entry in entries.flatten() {
-        let name = entry.file_name().to_string_lossy().into_owned();
-        let pid = name
-            .strip_prefix(PROBE_PREFIX)
-            .and_then(|pid| pid.parse::<i32>().ok());
-        if pid.is_some_and(|pid| !process_alive(pid)) {
-            let _ = fs::remove_file(entry.path());
-        }
-    }
+    remove_files_of_dead(dir, |name| {
+        name.strip_prefix(PROBE_PREFIX)
+            .and_then(|pid| pid.parse().ok())
+    });
 }
 
 /// Deletes `.<name>.tmp-<pid>` files (see [`write_atomic`]) of processes that died
 /// before renaming them.
 fn remove_dead_temporaries(dir: &Path) {
+    remove_files_of_dead(dir, |name| {
+        name.strip_prefix('.')
+            .and_then(|n| n.rsplit_once(".tmp-"))
+            .and_then(|(_, pid)| pid.parse().ok())
+    });
+}
+
+/// Deletes the files of `dir` whose name `pid_of` reads a process id from, where that
+/// process no longer exists.
+fn remove_files_of_dead(dir: &Path, pid_of: impl Fn(&str) -> Option<i32>) {
     let Ok(entries) = fs::read_dir(dir) else {
         return;
     };
     for entry in entries.flatten() {
         let name = entry.file_name().to_string_lossy().into_owned();
-        let pid = name
-            .strip_prefix('.')
-            .and_then(|n| n.rsplit_once(".tmp-"))
-            .and_then(|(_, pid)| pid.parse::<i32>().ok());
-        if pid.is_some_and(|pid| !process_alive(pid)) {
+        if pid_of(&name).is_some_and(|pid| !process_alive(pid)) {
             let _ = fs::remove_file(entry.path());
         }
     }

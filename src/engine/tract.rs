@@ -219,6 +219,15 @@ fn optimized(
             "{}: folded {n} int8 weight tensors to f32",
             model.path.display()
         );
+        let n = int8::unfuse_qlinear_convs(&mut proto).map_err(|message| EngineError::Load {
+            engine: NAME,
+            path: model.path.to_owned(),
+            message,
+        })?;
+        log::debug!(
+            "{}: {n} QLinearConv nodes run as float convolutions between their quantisation points",
+            model.path.display()
+        );
     }
     let mut graph = onnx.model_for_proto_model(&proto).map_err(load)?;
     let names = input_names(&graph).map_err(load)?;

@@ -249,7 +249,7 @@ pub struct ReshadeArgs {
     /// (the photo is shrunk for the network and the residual upsampled), or `full`: the
     /// photo's working size. The shipped model, trained on 128-pixel scenes, gains twice
     /// as much where shading changes at 256 px as at 640 px on rendered scenes, and a 12 MP
-    /// photo's Portrait views decode about eight times faster (docs/reshading.md,
+    /// photo's Portrait views decode about six times faster (docs/reshading.md,
     /// "Working size").
     #[arg(long, value_name = "PX|full", default_value = "256", value_parser = parse_reshade_size)]
     pub reshade_size: ReshadeSize,

@@ -80,11 +80,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--reach",
         default="view",
-        choices=("view", "surface"),
+        choices=("view", "surface", "visible"),
         help="--source renderer --head lobes: give a pixel a light's lobe only where the "
         "light's reflection comes near the photo's view, matched there (view), or on every "
         "glossy pixel the light reaches, as the lobe is at its peak: amplitude and "
-        "sharpness then belong to the surface and the light (surface) (default view)",
+        "sharpness then belong to the surface and the light (surface), or those only where "
+        "the photo shows them (at least a tenth of the pixel's light at the photo's view: "
+        "visible) (default view)",
     )
     p.add_argument(
         "--shard",
@@ -115,8 +117,8 @@ def settings(args: argparse.Namespace) -> dict:
         }
         if args.normals == "depth":
             told["normals"] = "depth"
-        if args.reach == "surface":
-            told["reach"] = "surface"
+        if args.reach != "view":
+            told["reach"] = args.reach
         return told
     return {
         "head": args.head,
@@ -187,7 +189,7 @@ def renderer_fields(
     """The analytic renderer's fields (C, H, W) for example `folder` (HDR, see
     FieldTargets), its scene drawn again from the seed and index in its meta.json."""
     from .render.analytic import make_example
-    from .render.decompose import decompose, light_lobes, no_lobes
+    from .render.decompose import decompose, light_lobes, no_lobes, visible_lobes
 
     meta = json.loads((folder / "meta.json").read_text())
     if meta.get("scene", {}).get("family") != "analytic":
@@ -203,7 +205,9 @@ def renderer_fields(
     lit = truth["input"].mean(2) > 1e-6
     scale = float(np.median(ex.input[lit].astype(np.float32) / truth["input"][lit]))
     if head == "lobes":
-        fields = light_lobes(scene, cam, lobes, normals, reach)
+        fields = light_lobes(scene, cam, lobes, normals, "view" if reach == "view" else "surface")
+        if reach == "visible":
+            fields = visible_lobes(fields, cam, truth["input"], lobes)
         for j in range(lobes):
             fields[..., 7 * j + 4 : 7 * j + 7] *= scale
     else:

@@ -290,3 +290,19 @@ def test_renderer_teacher_says_how_far_its_lobes_reach(renderer_fields, tmp_path
     argv = ["teacher", "--source", "renderer", "--head", "lobes", "--reach", "surface"]
     assert main([*argv, "--data", str(data), "--out", str(out)]) == 0
     assert json.loads((out / "teacher.json").read_text())["reach"] == "surface"
+
+
+def test_visible_lobes_are_the_peak_lobes_the_photo_shows():
+    from reshader_train.render.decompose import visible_lobes
+
+    scene, cam = mirror_scene(), camera()
+    whole = light_lobes(scene, cam, 1, reach="surface")
+    photo = decompose(scene, cam, 1)
+    shown = visible_lobes(whole, cam, photo["input"], 1)
+    lit_whole, lit_shown = whole[..., 4:7].mean(2) > 0, shown[..., 4:7].mean(2) > 0
+    assert (lit_shown <= lit_whole).all() and 0 < lit_shown.sum() < lit_whole.sum()
+    peak = np.unravel_index(np.argmax(photo["input"].mean(2)), photo["share"].shape[:2])
+    assert np.array_equal(shown[peak], whole[peak])
+    # Kept lobes are unchanged; only amplitudes of the others are zeroed.
+    assert np.array_equal(shown[lit_shown], whole[lit_shown])
+    assert np.array_equal(shown[..., 0:4], whole[..., 0:4])

@@ -203,6 +203,28 @@ def light_lobes(
     return fields.reshape(cam.height, cam.width, 7 * count)
 
 
+# `--reach visible`: a lobe counts as seen in the photo where its value at the photo's view
+# is at least this share of the pixel's light.
+VISIBLE_SHARE = 0.1
+
+
+def visible_lobes(fields: np.ndarray, cam: Camera, photo: np.ndarray, count: int) -> np.ndarray:
+    """`fields` (H, W, 7 count, lobes at their peaks) with the amplitude of every lobe
+    that the photo does not show set to 0: a lobe is kept where its value at the photo's
+    view is at least VISIBLE_SHARE of the pixel's light in `photo` (H, W, 3, the same
+    HDR units). What a head that reads its amplitudes off the photo's highlights could
+    know."""
+    out = fields.copy()
+    w0 = no_lobes(cam, 1)[..., 0:3]
+    light = photo.mean(2)
+    for j in range(count):
+        lobe = out[..., 7 * j : 7 * j + 7]
+        g0 = np.exp(lobe[..., 3] * (np.einsum("hwc,hwc->hw", lobe[..., 0:3], w0) - 1))
+        shown = lobe[..., 4:7].mean(2) * g0 >= VISIBLE_SHARE * light
+        lobe[..., 4:7] *= shown[..., None]
+    return out
+
+
 def no_lobes(cam: Camera, count: int) -> np.ndarray:
     """(H, W, 7 count) lobes of amplitude 0, pointing back to the camera (w0) with
     sharpness 1: the fields of a pixel nothing shines on."""

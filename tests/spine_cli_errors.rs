@@ -38,6 +38,13 @@ impl Case {
         run(&args)
     }
 
+    /// `reshader view` of the case's photo and depth into `out`.
+    fn view(&self, out: &str, extra: &[&str]) -> std::process::Output {
+        let mut args = vec!["view", &self.photo, "--depth", &self.depth, "--out", out];
+        args.extend_from_slice(extra);
+        run(&args)
+    }
+
     /// The run failed, said `needles` on stderr, and the directory holds only the inputs.
     fn assert_failed_cleanly(&self, result: &std::process::Output, needles: &[&str]) {
         let err = stderr(result);
@@ -240,16 +247,7 @@ fn failed_render_keeps_an_earlier_output_intact() {
 fn view_with_unknown_output_type() {
     let case = Case::new();
     let out = case.path("view.gif");
-    let result = run(&[
-        "view",
-        &case.photo,
-        "--depth",
-        &case.depth,
-        "--camera",
-        "0.1,0,0",
-        "--out",
-        &out,
-    ]);
+    let result = case.view(&out, &["--camera", "0.1,0,0"]);
     case.assert_failed_cleanly(&result, &["view.gif", ".png, .exr, .npy"]);
 }
 
@@ -257,18 +255,7 @@ fn view_with_unknown_output_type() {
 fn view_with_camera_beyond_focus() {
     let case = Case::new();
     let out = case.path("view.png");
-    let result = run(&[
-        "view",
-        &case.photo,
-        "--depth",
-        &case.depth,
-        "--focus",
-        "2",
-        "--camera",
-        "0,0,2.5",
-        "--out",
-        &out,
-    ]);
+    let result = case.view(&out, &["--focus", "2", "--camera", "0,0,2.5"]);
     case.assert_failed_cleanly(&result, &["beyond the zero-parallax plane"]);
 }
 
@@ -276,16 +263,7 @@ fn view_with_camera_beyond_focus() {
 fn malformed_camera_is_a_usage_error() {
     let case = Case::new();
     let out = case.path("view.png");
-    let result = run(&[
-        "view",
-        &case.photo,
-        "--depth",
-        &case.depth,
-        "--camera",
-        "0.1,0",
-        "--out",
-        &out,
-    ]);
+    let result = case.view(&out, &["--camera", "0.1,0"]);
     assert_eq!(result.status.code(), Some(2));
     assert!(stderr(&result).contains("TX,TY,TZ"));
 }
@@ -294,19 +272,10 @@ fn malformed_camera_is_a_usage_error() {
 fn a_zero_network_size_is_a_usage_error() {
     let case = Case::new();
     let out = case.path("view.png");
-    let result = run(&[
-        "view",
-        &case.photo,
-        "--depth",
-        &case.depth,
-        "--reshade-size",
-        "0",
-        "--out",
-        &out,
-    ]);
+    let result = case.view(&out, &["--reshade-size", "0"]);
     assert_eq!(result.status.code(), Some(2));
     assert!(stderr(&result).contains("neither `full` nor a size in pixels"));
-    assert!(!std::path::Path::new(&out).exists());
+    assert!(!Path::new(&out).exists());
 }
 
 #[test]
@@ -384,16 +353,7 @@ fn absurd_depthiness_and_cameras_are_refused() {
     case.assert_failed_cleanly(&result, &["--depthiness 100000", "from 0 to 10"]);
     let out = case.path("view.png");
     for camera in ["1e30,0,0", "0,-1e300,0", "0,0,-1e30"] {
-        let result = run(&[
-            "view",
-            &case.photo,
-            "--depth",
-            &case.depth,
-            "--camera",
-            camera,
-            "--out",
-            &out,
-        ]);
+        let result = case.view(&out, &["--camera", camera]);
         case.assert_failed_cleanly(&result, &["times the zero-parallax depth"]);
     }
 }
@@ -439,16 +399,7 @@ fn any_depth_scale_and_any_allowed_camera_render() {
     // nothing of the scene, and is still an image.
     for camera in ["5000,0,0", "0,0,-20000", "-3,2,1"] {
         let out = case.path("view.png");
-        let result = run(&[
-            "view",
-            &case.photo,
-            "--depth",
-            &case.depth,
-            "--camera",
-            camera,
-            "--out",
-            &out,
-        ]);
+        let result = case.view(&out, &["--camera", camera]);
         assert_eq!(
             result.status.code(),
             Some(0),
@@ -513,16 +464,7 @@ fn unwritable_out_is_refused_before_any_work() {
         );
     }
     let view_out = case.path("no-such-dir/view.png");
-    let result = run(&[
-        "view",
-        &case.photo,
-        "--depth",
-        &case.depth,
-        "--camera",
-        "0.1,0,0",
-        "--out",
-        &view_out,
-    ]);
+    let result = case.view(&view_out, &["--camera", "0.1,0,0"]);
     case.assert_failed_cleanly(&result, &["no-such-dir", "does not exist"]);
     let result = run(&[
         "convert",

@@ -36,12 +36,7 @@ pub fn fold_weight_dequantization(model: &mut pb::ModelProto) -> Result<usize, S
     if quantizes_activations {
         return Ok(0);
     }
-    let initializers: HashMap<String, usize> = graph
-        .initializer
-        .iter()
-        .enumerate()
-        .map(|(i, t)| (t.name.clone(), i))
-        .collect();
+    let initializers = initializer_index(graph);
     let mut folded = Vec::new();
     let mut kept = Vec::with_capacity(graph.node.len());
     for node in std::mem::take(&mut graph.node) {
@@ -86,12 +81,7 @@ pub fn unfuse_qlinear_convs(model: &mut pb::ModelProto) -> Result<usize, String>
     let Some(graph) = model.graph.as_mut() else {
         return Ok(0);
     };
-    let initializers: HashMap<String, usize> = graph
-        .initializer
-        .iter()
-        .enumerate()
-        .map(|(i, t)| (t.name.clone(), i))
-        .collect();
+    let initializers = initializer_index(graph);
     let mut nodes = Vec::with_capacity(graph.node.len());
     let mut added = Vec::new();
     let mut consumed: HashSet<String> = HashSet::new();
@@ -102,10 +92,10 @@ pub fn unfuse_qlinear_convs(model: &mut pb::ModelProto) -> Result<usize, String>
                 .get(k)
                 .is_some_and(|i| initializers.contains_key(i))
         };
-        let unfusable = node.op_type == "QLinearConv"
+        let replaceable = node.op_type == "QLinearConv"
             && (8..=9).contains(&node.input.len())
             && (1..node.input.len()).all(constant);
-        if !unfusable {
+        if !replaceable {
             nodes.push(node);
             continue;
         }
@@ -188,6 +178,16 @@ fn dequantize_bias(
         float_data: data,
         ..Default::default()
     })
+}
+
+/// Each initializer's position in the graph, by name.
+fn initializer_index(graph: &pb::GraphProto) -> HashMap<String, usize> {
+    graph
+        .initializer
+        .iter()
+        .enumerate()
+        .map(|(i, t)| (t.name.clone(), i))
+        .collect()
 }
 
 /// Removes the initializers among `consumed` that no node or graph output reads.
@@ -282,34 +282,42 @@ fn integers(t: &pb::TensorProto) -> Result<Vec<i32>, String> {
 }
 
 fn int32s(t: &pb::TensorProto) -> Result<Vec<i32>, String> {
-    if t.data_type != INT32 {
-        return Err(format!(
-            "bias {:?} has element type {}; expected int32",
-            t.name, t.data_type
-        ));
-    }
-    if t.raw_data.is_empty() {
-        return Ok(t.int32_data.clone());
-    }
-    Ok(t.raw_data
-        .chunks_exact(4)
-        .map(|b| i32::from_le_bytes([b[0], b[1], b[2], b[3]]))
-        .collect())
+    words(t, INT32, "bias", "int32", &t.int32_data, i32::from_le_bytes)
 }
 
 fn floats(t: &pb::TensorProto) -> Result<Vec<f32>, String> {
-    if t.data_type != FLOAT {
+    words(
+        t,
+        FLOAT,
+        "scale",
+        "float",
+        &t.float_data,
+        f32::from_le_bytes,
+    )
+}
+
+/// The values of a tensor of 4-byte elements of type `data_type`, from its raw bytes
+/// (little-endian) or its typed field `typed`; `role` and `kind` name it in the error.
+fn words<T: Clone>(
+    t: &pb::TensorProto,
+    data_type: i32,
+    role: &str,
+    kind: &str,
+    typed: &[T],
+    from_le: fn([u8; 4]) -> T,
+) -> Result<Vec<T>, String> {
+    if t.data_type != data_type {
         return Err(format!(
-            "scale {:?} has element type {}; expected float",
+            "{role} {:?} has element type {}; expected {kind}",
             t.name, t.data_type
         ));
     }
     if t.raw_data.is_empty() {
-        return Ok(t.float_data.clone());
+        return Ok(typed.to_vec());
     }
     Ok(t.raw_data
         .chunks_exact(4)
-        .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+        .map(|b| from_le([b[0], b[1], b[2], b[3]]))
         .collect())
 }
 
@@ -342,6 +350,17 @@ mod tests {
         }
     }
 
+    fn model(initializer: Vec<pb::TensorProto>, node: Vec<pb::NodeProto>) -> pb::ModelProto {
+        pb::ModelProto {
+            graph: Some(pb::GraphProto {
+                initializer,
+                node,
+                ..Default::default()
+            }),
+            ..Default::default()
+        }
+    }
+
     /// Two output channels of a 2×1×1×2 weight, scales 0.5 and 0.25, zero points 0 and 2.
     fn weights_only_model() -> pb::ModelProto {
         let q: Vec<u8> = [1i8, -2, 4, 6].iter().map(|&v| v as u8).collect();
@@ -350,21 +369,17 @@ mod tests {
             .flat_map(|v| v.to_le_bytes())
             .collect();
         let zeros = vec![0u8, 2];
-        pb::ModelProto {
-            graph: Some(pb::GraphProto {
-                initializer: vec![
-                    tensor("w_q", INT8, &[2, 1, 1, 2], q),
-                    tensor("w_scale", FLOAT, &[2], scales),
-                    tensor("w_zero", INT8, &[2], zeros),
-                ],
-                node: vec![
-                    node("DequantizeLinear", &["w_q", "w_scale", "w_zero"], "w"),
-                    node("Conv", &["x", "w"], "y"),
-                ],
-                ..Default::default()
-            }),
-            ..Default::default()
-        }
+        model(
+            vec![
+                tensor("w_q", INT8, &[2, 1, 1, 2], q),
+                tensor("w_scale", FLOAT, &[2], scales),
+                tensor("w_zero", INT8, &[2], zeros),
+            ],
+            vec![
+                node("DequantizeLinear", &["w_q", "w_scale", "w_zero"], "w"),
+                node("Conv", &["x", "w"], "y"),
+            ],
+        )
     }
 
     #[test]
@@ -414,23 +429,19 @@ mod tests {
             ints: vec![1, 1],
             ..Default::default()
         }];
-        pb::ModelProto {
-            graph: Some(pb::GraphProto {
-                initializer: vec![
-                    tensor("xs", FLOAT, &[], f(&[0.1])),
-                    tensor("xz", UINT8, &[], vec![128]),
-                    tensor("w", INT8, &[2, 1, 1, 1], vec![3, (-2i8) as u8]),
-                    tensor("ws", FLOAT, &[2], f(&[0.5, 0.25])),
-                    tensor("wz", INT8, &[2], vec![0, 0]),
-                    tensor("ys", FLOAT, &[], f(&[0.2])),
-                    tensor("yz", UINT8, &[], vec![3]),
-                    tensor("b", INT32, &[2], bias),
-                ],
-                node: vec![conv],
-                ..Default::default()
-            }),
-            ..Default::default()
-        }
+        model(
+            vec![
+                tensor("xs", FLOAT, &[], f(&[0.1])),
+                tensor("xz", UINT8, &[], vec![128]),
+                tensor("w", INT8, &[2, 1, 1, 1], vec![3, (-2i8) as u8]),
+                tensor("ws", FLOAT, &[2], f(&[0.5, 0.25])),
+                tensor("wz", INT8, &[2], vec![0, 0]),
+                tensor("ys", FLOAT, &[], f(&[0.2])),
+                tensor("yz", UINT8, &[], vec![3]),
+                tensor("b", INT32, &[2], bias),
+            ],
+            vec![conv],
+        )
     }
 
     #[test]

@@ -209,21 +209,17 @@ fn optimized(
         log::debug!("{}: widened {n} fp16 tensors to f32", model.path.display());
     }
     if model.precision == Precision::Int8 {
-        let n =
-            int8::fold_weight_dequantization(&mut proto).map_err(|message| EngineError::Load {
-                engine: NAME,
-                path: model.path.to_owned(),
-                message,
-            })?;
+        let rewrite_error = |message| EngineError::Load {
+            engine: NAME,
+            path: model.path.to_owned(),
+            message,
+        };
+        let n = int8::fold_weight_dequantization(&mut proto).map_err(rewrite_error)?;
         log::debug!(
             "{}: folded {n} int8 weight tensors to f32",
             model.path.display()
         );
-        let n = int8::unfuse_qlinear_convs(&mut proto).map_err(|message| EngineError::Load {
-            engine: NAME,
-            path: model.path.to_owned(),
-            message,
-        })?;
+        let n = int8::unfuse_qlinear_convs(&mut proto).map_err(rewrite_error)?;
         log::debug!(
             "{}: {n} QLinearConv nodes run as float convolutions between their quantisation points",
             model.path.display()

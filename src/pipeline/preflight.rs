@@ -107,8 +107,9 @@ pub mod factors {
     /// panel pixel.
     pub const PANEL: u64 = 9;
     /// Reshading network activations per working pixel (the photo's pixels at the size
-    /// --reshade-scale and --reshade-size leave): the encoder's features and one decoder run, the latter
-    /// for each view decoded at once (--reshade-batch times --parallel-views).
+    /// --reshade-scale and --reshade-size leave): the encoder's features and one decoder
+    /// run, the latter for each view decoded at once (--reshade-batch times
+    /// --parallel-views).
     pub const NET_FEATURES: u64 = 280;
     pub const NET_PER_VIEW: u64 = 350;
     /// The reshading network's weights and engine, whatever the photo.

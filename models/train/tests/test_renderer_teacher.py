@@ -263,12 +263,17 @@ def test_a_flat_floor_mirrors_the_same_about_its_depth_as_about_its_surface():
     assert np.allclose(light_lobes(scene, cam, 1, "depth"), light_lobes(scene, cam, 1), atol=1e-4)
 
 
-def test_renderer_teacher_says_which_normals_it_mirrored_about(renderer_fields, tmp_path):
+@pytest.mark.parametrize(
+    ("option", "value"), [("normals", "depth"), ("reach", "surface"), ("reach", "visible")]
+)
+def test_renderer_teacher_records_the_fields_it_was_asked_for(
+    renderer_fields, tmp_path, option, value
+):
     data, _ = renderer_fields
-    out = tmp_path / "depth"
-    argv = ["teacher", "--source", "renderer", "--head", "lobes", "--normals", "depth"]
+    out = tmp_path / value
+    argv = ["teacher", "--source", "renderer", "--head", "lobes", f"--{option}", value]
     assert main([*argv, "--data", str(data), "--out", str(out)]) == 0
-    assert json.loads((out / "teacher.json").read_text())["normals"] == "depth"
+    assert json.loads((out / "teacher.json").read_text())[option] == value
     assert len(list(out.glob("*.npy"))) == 3
 
 
@@ -282,14 +287,6 @@ def test_lobes_at_their_peaks_cover_the_lit_floor_and_agree_at_the_highlight():
     photo = decompose(scene, cam, 1)
     peak = np.unravel_index(np.argmax(photo["input"].mean(2)), photo["share"].shape[:2])
     assert np.allclose(whole[peak], near[peak], rtol=0.05)
-
-
-def test_renderer_teacher_says_how_far_its_lobes_reach(renderer_fields, tmp_path):
-    data, _ = renderer_fields
-    out = tmp_path / "surface"
-    argv = ["teacher", "--source", "renderer", "--head", "lobes", "--reach", "surface"]
-    assert main([*argv, "--data", str(data), "--out", str(out)]) == 0
-    assert json.loads((out / "teacher.json").read_text())["reach"] == "surface"
 
 
 def test_visible_lobes_are_the_peak_lobes_the_photo_shows():

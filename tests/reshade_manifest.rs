@@ -250,6 +250,14 @@ mod lobes {
     fn the_lobe_fields_are_checked() {
         assert_names(&lobe_refusal(|m| m["head"] = json!("residual")), "head");
         assert_names(&lobe_refusal(|m| m["domain"] = json!("linear")), "domain");
+        // The clamped domain is the lobes head's alone.
+        let slide = lobe_refusal(|m| {
+            m["head"] = json!("lobes-slide");
+            m["domain"] = json!("linear-clamped");
+            m.as_object_mut().unwrap().remove("channels");
+        });
+        assert_names(&slide, "domain");
+        assert!(slide.contains("not \"lobes-slide\""), "{slide}");
         assert_names(&lobe_refusal(|m| m["deadzone"] = json!(0.7)), "deadzone");
         assert_names(
             &lobe_refusal(|m| m["lobe_layout"][3] = json!("lambda")),

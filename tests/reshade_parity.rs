@@ -164,12 +164,12 @@ mod onnxruntime {
     }
 }
 
-// --- the lobe heads (models/fixtures/parity-lobes.json, models/fixtures/slide/…) ----------
+// --- the lobe heads (models/fixtures/parity-lobes.json, models/fixtures/{slide,photo}/…) --
 
 mod lobes {
     use super::*;
     use reshade_support::manifest_path_in;
-    use reshader::engine::manifest::LobeSpec;
+    use reshader::engine::manifest::{LobeDomain, LobeSpec};
     use reshader::reshade::net::lobes::{pixel_rays, LobeField, LobeReshader};
     use reshader::views::Intrinsics;
     use std::path::PathBuf;
@@ -177,10 +177,15 @@ mod lobes {
     /// The brief's bound for the runtime against PyTorch: one 8-bit level per pixel.
     const ONE_LEVEL: f32 = 1.0 / 255.0;
 
-    /// The fixtures of the lobe heads: `lobes` beside the residual one, `lobes-slide` in
-    /// its own folder (one lobe-head manifest per precision and folder).
-    fn fixtures() -> [PathBuf; 2] {
-        [fixture_dir(), fixture_dir().join("slide")]
+    /// The fixtures of the lobe heads: `lobes` beside the residual one, `lobes-slide` and
+    /// `lobes` in the linear-clamped domain with amplitudes from the photo in folders of
+    /// their own (one lobe-head manifest per precision and folder).
+    fn fixtures() -> [PathBuf; 3] {
+        [
+            fixture_dir(),
+            fixture_dir().join("slide"),
+            fixture_dir().join("photo"),
+        ]
     }
 
     fn parity(dir: &std::path::Path) -> Value {
@@ -195,6 +200,11 @@ mod lobes {
             lobes: p["lobes"].as_u64().unwrap() as usize,
             deadzone: p["deadzone"].as_f64().unwrap() as f32,
             slide: p["head"].as_str().unwrap_or("lobes") == "lobes-slide",
+            domain: match p["domain"].as_str().unwrap_or("display") {
+                "display" => LobeDomain::Display,
+                "linear-clamped" => LobeDomain::LinearClamped,
+                other => panic!("fixture domain {other:?}"),
+            },
         }
     }
 

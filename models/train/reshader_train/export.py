@@ -326,7 +326,7 @@ class HalfLobes(nn.Module):
     def forward(self, image: torch.Tensor, disparity: torch.Tensor, rays: torch.Tensor):
         bottleneck, skips = self.encoder(image.half(), disparity.half())
         raw = self.decoder.features(skips, bottleneck, None).float()
-        return self.lobe_field(raw, rays)
+        return self.lobe_field(raw, rays, image)
 
 
 def half_module(net: ReshadeNet, kind: GraphKind) -> nn.Module:
@@ -529,8 +529,9 @@ def check_parity(
             )
         r = r.numpy()
         if kind is LOBES:
-            lobes = reference.net.cfg.lobes
-            r, o = comparable_lobes(r, lobes), comparable_lobes(o, lobes)
+            cfg = reference.net.cfg
+            log_amp = cfg.domain == "linear-clamped"
+            r, o = (comparable_lobes(x, cfg.lobes, log_amp) for x in (r, o))
         diff = np.abs(r - o)
         worst = max(worst, float(diff.max()))
         mean = max(mean, float(diff.mean()))
@@ -543,7 +544,10 @@ def check_parity(
     out = {"max_abs": worst, "mean_abs": mean, "tolerance": tol, "mean_tolerance": mean_tol}
     if kind is LOBES:
         out["compared"] = (
-            "lobes, sharpness as its log (axes, amplitudes absolute; sharpness relative)"
+            "lobes, sharpness and amplitudes (from 1e-6) as their logs (axes absolute; "
+            "sharpness and amplitudes relative)"
+            if reference.net.cfg.domain == "linear-clamped"
+            else "lobes, sharpness as its log (axes, amplitudes absolute; sharpness relative)"
         )
         out["shaded"] = shaded_parity(feed, ref[0], torch.from_numpy(got[0]), reference)
     return out
@@ -554,13 +558,24 @@ def check_parity(
 LOBE_PARITY_CAMERAS = ((0.12, -0.05, 0.2), (0.5, 0.0, 0.0))
 
 
-def comparable_lobes(fields: np.ndarray, lobes: int) -> np.ndarray:
+# Amplitudes of the linear-clamped domain are compared in log from here up: a fainter lobe
+# changes nothing past any dead zone.
+FAINTEST_COMPARED = 1e-6
+
+
+def comparable_lobes(fields: np.ndarray, lobes: int, log_amplitude: bool = False) -> np.ndarray:
     """The fields with each of the `lobes` sharpnesses replaced by its logarithm, so that
     one absolute tolerance bounds the axes, amplitudes and the sliding layer's fraction and
-    depth absolutely and the sharpness (1..2e4) relatively."""
+    depth absolutely and the sharpness (1..2e4) relatively. `log_amplitude` (the
+    linear-clamped domain, whose amplitudes span ten orders): the amplitudes too."""
     out = np.array(fields, dtype=np.float64, copy=True)
-    sharp = slice(3, len(LOBE_LAYOUT) * lobes, len(LOBE_LAYOUT))
+    n = len(LOBE_LAYOUT)
+    sharp = slice(3, n * lobes, n)
     out[:, sharp] = np.log(np.maximum(out[:, sharp], 1e-30))
+    if log_amplitude:
+        for j in range(lobes):
+            amp = out[:, n * j + 4 : n * j + 7]
+            out[:, n * j + 4 : n * j + 7] = np.log(np.maximum(amp, FAINTEST_COMPARED))
     return out
 
 
@@ -579,6 +594,7 @@ def shaded_parity(feed: dict, ref: torch.Tensor, got: torch.Tensor, reference: n
                 feed["rays"],
                 c,
                 cfg.deadzone,
+                domain=cfg.domain,
                 head=cfg.head,
             )
             .clamp(0.0, 1.0)
@@ -629,6 +645,8 @@ def architecture(cfg: NetConfig, size: str, kind: GraphKind) -> dict:
     }
     if cfg.head in EXPORTED_LOBE_HEADS:
         arch["lobes"] = cfg.lobes
+        # Where the graph's amplitudes come from (the runtime reads them as they are).
+        arch["amplitude"] = cfg.amplitude
     return arch
 
 
@@ -640,6 +658,17 @@ LOBE_SHADING = (
     "by deadzone (0 where |change| <= deadzone, else change -+ deadzone, per channel); "
     "reshaded = clamp(image + change', 0, 1); c = 0 gives the image exactly"
 )
+# The linear-clamped domain's closed form (model.shade_lobes), in place of LOBE_SHADING's
+# last two steps.
+CLAMPED_SHADING = (
+    "domain linear-clamped, per colour: L = max(image, 0)^2.2, S = sum_j a_j exp(lambda_j "
+    "(mu_j . w - 1)), S0 the same at w0; clipped = image >= 1 - 0.5/255; k = 1 where clipped, "
+    "else min(1, L / max(S0, 1e-12)); dug = max(S0 - L, 0) where clipped, else 0; change = "
+    "soft threshold by deadzone of min(L + k (S - S0) + dug, 1) - L; reshaded = image where "
+    "change = 0, else max(L + change, 1e-4)^(1/2.2)"
+)
+# The domains the runtime evaluates.
+EXPORTED_DOMAINS = ("display", "linear-clamped")
 # What lobes-slide adds to the change before the threshold (model.slide_change).
 SLIDE_SHADING = (
     "lobes-slide adds to change, before the threshold: S = image * fraction (per colour), "
@@ -657,13 +686,15 @@ def lobe_fields(cfg: NetConfig) -> dict:
     if cfg.head == "lobes-slide":
         channels += list(SLIDE_LAYOUT)
         shading = f"{LOBE_SHADING}. {SLIDE_SHADING}"
+    if cfg.domain == "linear-clamped":
+        shading = f"{LOBE_SHADING}. In {CLAMPED_SHADING}"
     return {
         "head": cfg.head,
         "lobes": cfg.lobes,
         "lobe_layout": list(LOBE_LAYOUT),
         "channels": channels,
         "deadzone": cfg.deadzone,
-        "domain": "display",
+        "domain": cfg.domain,
         "disparity_depth": DISPARITY_DEPTH,
         "shading": shading,
     }
@@ -931,10 +962,10 @@ def run(args: argparse.Namespace) -> int:
                 f"{args.checkpoint}: the lobes-flow head is for training experiments; the "
                 f"runtime evaluates {' and '.join(EXPORTED_LOBE_HEADS)} only, so it has no export"
             )
-        if net.cfg.domain != "display":
+        if net.cfg.domain not in EXPORTED_DOMAINS:
             raise ValueError(
                 f"{args.checkpoint}: its lobes add in the {net.cfg.domain} domain; the runtime "
-                "adds them in the display encoding only, so it has no export"
+                f"adds them in {' or '.join(EXPORTED_DOMAINS)} only, so it has no export"
             )
         size = args.size_name or size_name(net.cfg)
         base_validation = _load_metrics(args.metrics)

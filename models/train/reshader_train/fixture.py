@@ -24,6 +24,10 @@ trained offsets, so that the runtime can check its per-view closed form without 
 layer, its fraction biased up so that a fifth of the photo slides), named
 `reshade-fixture-slide-<precision>-lobes`; give it a folder of its own (models/fixtures/slide),
 as the runtime finds one lobe-head manifest per precision in a folder.
+
+`--head lobes-photo` writes the lobes head with one lobe in the linear-clamped domain, its
+amplitudes taken from the photo (`--lobe-amplitude photo`), named
+`reshade-fixture-photo-<precision>-lobes`, into a folder of its own (models/fixtures/photo).
 """
 
 from __future__ import annotations
@@ -87,6 +91,17 @@ LOBE_PARITY = "parity-lobes.json"
 SLIDE_LOBES = 1
 SLIDE_STEM = "reshade-fixture-slide"
 SLIDE_FRACTION_RAW_BIAS = 1.5
+# The lobes-photo fixture: lobes and name; the raw share's bias lifts the shares from the
+# untrained 1e-3 to where a view visibly moves light.
+PHOTO_LOBES = 1
+PHOTO_STEM = "reshade-fixture-photo"
+PHOTO_SHARE_RAW_BIAS = 2.0
+# The fixture kinds beyond the residual one: (head, lobes, domain, amplitude, stem).
+LOBE_FIXTURES = {
+    "lobes": ("lobes", LOBE_COUNT, "display", "free", None),
+    "lobes-slide": ("lobes-slide", SLIDE_LOBES, "display", "free", SLIDE_STEM),
+    "lobes-photo": ("lobes", PHOTO_LOBES, "linear-clamped", "photo", PHOTO_STEM),
+}
 STEPS = 1000
 LOBE_STEPS = 0
 
@@ -95,10 +110,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", type=Path, required=True, help="folder (models/fixtures)")
     p.add_argument(
         "--head",
-        choices=("residual", "lobes", "lobes-slide"),
+        choices=("residual", *LOBE_FIXTURES),
         default="residual",
         help="residual: the encoder/decoder fixture and parity.json; lobes or lobes-slide: that "
-        "lobe head's graphs (-lobes) and parity-lobes.json (lobes-slide into a folder of its own)",
+        "lobe head's graphs (-lobes) and parity-lobes.json; lobes-photo: the lobes head in the "
+        "linear-clamped domain with amplitudes from the photo (lobes-slide and lobes-photo "
+        "into folders of their own)",
     )
     p.add_argument(
         "--steps", type=int, help=f"training steps (default {STEPS} residual, {LOBE_STEPS} lobes)"
@@ -240,21 +257,32 @@ def make_fixture(out: Path, steps: int, seed: int, examples: int, height: int, w
 
 
 def train_tiny_lobes(
-    steps: int, seed: int, data: Path, head: str = "lobes"
+    steps: int, seed: int, data: Path, kind: str = "lobes"
 ) -> tuple[ReshadeNet, float | None]:
-    """The lobe head from a fixed seed, its last convolution drawn with a visible spread and
-    frozen, then `steps` of masked L1 on the shaded output for the rest; returns the network
-    and its last-50-step loss."""
+    """The lobe head of fixture `kind` (LOBE_FIXTURES) from a fixed seed, its last
+    convolution drawn with a visible spread and frozen, then `steps` of masked L1 on the
+    shaded output for the rest; returns the network and its last-50-step loss."""
     torch.manual_seed(seed)
-    lobes = SLIDE_LOBES if head == "lobes-slide" else LOBE_COUNT
-    cfg = replace(net_config(WIDTHS), head=head, lobes=lobes, deadzone=LOBE_DEADZONE)
+    head, lobes, domain, amplitude, _ = LOBE_FIXTURES[kind]
+    cfg = replace(
+        net_config(WIDTHS),
+        head=head,
+        lobes=lobes,
+        deadzone=LOBE_DEADZONE,
+        domain=domain,
+        amplitude=amplitude,
+    )
     net = ReshadeNet(cfg)
     torch.nn.init.normal_(net.decoder.out.weight, std=LOBE_INIT_STD)
-    k = len(LOBE_LAYOUT) * lobes
+    n = len(LOBE_LAYOUT)
+    k = n * lobes
     with torch.no_grad():
-        net.decoder.out.bias[3 : k : len(LOBE_LAYOUT)] = LOBE_SHARPNESS_BIAS
+        net.decoder.out.bias[3:k:n] = LOBE_SHARPNESS_BIAS
         if head == "lobes-slide":
             net.decoder.out.bias[k : k + 3] = SLIDE_FRACTION_RAW_BIAS
+        if amplitude == "photo":
+            for j in range(lobes):
+                net.decoder.out.bias[n * j + 4 : n * j + 7] = PHOTO_SHARE_RAW_BIAS
     net.decoder.out.requires_grad_(False)
     opt = torch.optim.Adam([p for p in net.parameters() if p.requires_grad], lr=1e-3)
     losses = []
@@ -279,6 +307,7 @@ def shaded(net: ReshadeNet, lobes: torch.Tensor, base: dict, camera) -> np.ndarr
             base["rays"],
             torch.tensor([camera], dtype=torch.float32),
             net.cfg.deadzone,
+            domain=net.cfg.domain,
             head=net.cfg.head,
         )
         .clamp(0.0, 1.0)
@@ -287,7 +316,7 @@ def shaded(net: ReshadeNet, lobes: torch.Tensor, base: dict, camera) -> np.ndarr
 
 
 def lobe_parity_record(
-    net: ReshadeNet, qnet: ReshadeNet, out: Path, height: int, width: int
+    net: ReshadeNet, qnet: ReshadeNet, out: Path, height: int, width: int, kind: str = "lobes"
 ) -> dict:
     """PyTorch's lobes and reshaded images (fp32 network; the weights-only fake-quantised one
     for int8) and how far the closed form on onnxruntime's lobes lands from them."""
@@ -304,7 +333,7 @@ def lobe_parity_record(
         cases.append({"camera": list(cam), "reshaded": _b64(ref), "reshaded_int8": _b64(qref)})
     measured = {}
     for precision in ("fp32", "fp16", "int8"):
-        stem = lobe_stem(precision, net.cfg.head)
+        stem = lobe_stem(precision, kind)
         (got,) = run_onnxruntime((out / f"{stem}.onnx").read_bytes(), base)
         worst = mean = 0.0
         for cam, ref in zip(
@@ -324,12 +353,14 @@ def lobe_parity_record(
     intrinsics = parity_intrinsics(height, width)
     return {
         "format": "reshader-lobe-parity/1",
-        "model": f"{fixture_stem(net.cfg.head)}-<precision>-lobes",
+        "model": f"{fixture_stem(kind)}-<precision>-lobes",
         "height": height,
         "width": width,
         "head": net.cfg.head,
         "lobes": net.cfg.lobes,
         "deadzone": net.cfg.deadzone,
+        "domain": net.cfg.domain,
+        "amplitude": net.cfg.amplitude,
         "camera": {
             "hfov_deg": PARITY_HFOV_DEG,
             **intrinsics,
@@ -364,13 +395,13 @@ def lobe_parity_record(
     }
 
 
-def fixture_stem(head: str) -> str:
-    return SLIDE_STEM if head == "lobes-slide" else STEM
+def fixture_stem(kind: str) -> str:
+    return LOBE_FIXTURES[kind][4] or STEM
 
 
-def lobe_stem(precision: str, head: str = "lobes") -> str:
+def lobe_stem(precision: str, kind: str = "lobes") -> str:
     """The graph's name with the -lobes suffix export adds (int8: weights-only, -wo)."""
-    return f"{fixture_stem(head)}-{'int8-wo' if precision == 'int8' else precision}{LOBES.suffix}"
+    return f"{fixture_stem(kind)}-{'int8-wo' if precision == 'int8' else precision}{LOBES.suffix}"
 
 
 def make_lobe_fixture(
@@ -380,13 +411,13 @@ def make_lobe_fixture(
     examples: int,
     height: int,
     width: int,
-    head: str = "lobes",
+    kind: str = "lobes",
 ):
     t0 = time.time()
     torch.set_num_threads(1)
     with tempfile.TemporaryDirectory() as tmp:
         data = write_dataset(Path(tmp) / "synthetic", examples, 64, 64, seed=seed)
-        net, loss = train_tiny_lobes(steps, seed, data, head)
+        net, loss = train_tiny_lobes(steps, seed, data, kind)
         qnet = quantize_network(copy.deepcopy(net))
         calibrate(qnet, training_crops(data, 8, 8, 64, seed + 1))
         set_input_quantization(qnet, False)  # the weights-only form the runtime ships
@@ -394,7 +425,7 @@ def make_lobe_fixture(
         n_examples = len(ReshadeDataset(data))
     wall = round(time.time() - t0, 1)
     command = (
-        f"reshader-train fixture --head {head} --out {out} --steps {steps} --seed {seed} "
+        f"reshader-train fixture --head {kind} --out {out} --steps {steps} --seed {seed} "
         f"--examples {examples} --height {height} --width {width}"
     )
     info = ExportInfo(
@@ -404,7 +435,8 @@ def make_lobe_fixture(
             "data": f"synthetic.write_dataset({examples} examples, 64x64, seed {seed}); "
             f"crops 64, {Augment()}; last conv drawn with std {LOBE_INIT_STD}, sharpness "
             f"bias {LOBE_SHARPNESS_BIAS}"
-            + (f", fraction bias {SLIDE_FRACTION_RAW_BIAS}" if head == "lobes-slide" else "")
+            + (f", fraction bias {SLIDE_FRACTION_RAW_BIAS}" if kind == "lobes-slide" else "")
+            + (f", share bias {PHOTO_SHARE_RAW_BIAS}" if kind == "lobes-photo" else "")
             + ", frozen",
             "feature_network": "none (masked L1 only: a test fixture)"
             if steps
@@ -416,13 +448,13 @@ def make_lobe_fixture(
         source=f"{command} (torch {torch.__version__})",
     )
     for precision, model in (("fp32", net), ("fp16", net), ("int8", qnet)):
-        stem = lobe_stem(precision, head).removesuffix(LOBES.suffix)
+        stem = lobe_stem(precision, kind).removesuffix(LOBES.suffix)
         form = "weights" if precision == "int8" else "qdq"
         if precision == "int8":
             quantization = {**SCHEME, "regions": INT8_FORMS[form], "form": form, "method": "ptq"}
             info = replace(info, validation={**info.validation, "quantization": quantization})
         export_precision(model, precision, out, stem, info, False, height, width, int8_form=form)
-    record = lobe_parity_record(net, qnet, out, height, width)
+    record = lobe_parity_record(net, qnet, out, height, width, kind)
     tmp = out / f".{LOBE_PARITY}.tmp"
     tmp.write_text(json.dumps(record, indent=1) + "\n")
     os.replace(tmp, out / LOBE_PARITY)

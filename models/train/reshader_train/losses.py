@@ -258,6 +258,16 @@ def _masked_mean(x: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
     return (x * mask).sum() / mask.sum().clamp(min=1)
 
 
+def light_share(lobe: torch.Tensor, linear: torch.Tensor, w0: torch.Tensor) -> torch.Tensor:
+    """u = a G(w0) / L for one lobe (B,7,H,W): the share of the pixel's linear light `linear`
+    (B,3,H,W) that the lobe holds at the photo's view w0, mapped through u / (1 + u) to
+    [0, 1): linear for the shares of unclipped pixels (u <= 1 matters there), and a lobe
+    over a clipped highlight, far brighter than white, near 1 rather than unbounded."""
+    g0 = torch.exp(lobe[:, 3:4] * ((lobe[:, 0:3] * w0).sum(1, keepdim=True) - 1.0))
+    u = lobe[:, 4:7] * g0 / linear
+    return u / (1.0 + u)
+
+
 def field_loss(
     fields: torch.Tensor,
     teacher: torch.Tensor,
@@ -265,6 +275,7 @@ def field_loss(
     fraction: str = "l1",
     log_amplitude: bool = False,
     balance: bool = False,
+    photo: tuple[torch.Tensor, torch.Tensor] | None = None,
 ) -> torch.Tensor:
     """How far a lobe head's fields (B,C,H,W) are from fitted ones (`train --teacher`).
 
@@ -281,16 +292,41 @@ def field_loss(
     (a lobe brighter than white matters as much as a white one). `balance` (with
     `log_amplitude`): the mean over the teacher's lit amplitudes and the mean over its
     unlit ones count equally, so that lit pixels, a seventh of the training scenes', are
-    not outvoted by a network that cannot tell the two apart."""
-    from .model import AMPLITUDE_SEEN, LOG_AMPLITUDE_RANGE, SHARPNESS_RANGE
+    not outvoted by a network that cannot tell the two apart. `photo` (image, rays), with
+    `log_amplitude` (`train --teacher-share`): amplitudes are compared instead by the share
+    of the pixel's light each lobe holds at the photo's view (`light_share`), squared.
+    Where the photo leaves in doubt whether a highlight is there, a squared log distance
+    settles on the mean of the logs, which the many unlit pixels drag to the floor (a
+    network's lobes then sit near 10^-2.5 everywhere and move nothing); the mean share is
+    what a view's squared error asks for there."""
+    from .model import (
+        AMPLITUDE_SEEN,
+        LINEAR_FLOOR,
+        LINEAR_GAMMA,
+        LOG_AMPLITUDE_RANGE,
+        SHARPNESS_RANGE,
+        view_directions,
+    )
 
     span = math.log(SHARPNESS_RANGE[1] / SHARPNESS_RANGE[0])
     lo, hi = AMPLITUDE_SEEN, LOG_AMPLITUDE_RANGE[1]
     total = fields.new_zeros(())
+    if photo is not None:
+        image, rays = photo
+        linear = (image.clamp(min=0.0) ** LINEAR_GAMMA).clamp(min=LINEAR_FLOOR)
+        w0 = view_directions(torch.zeros_like(rays[:, :1]), rays, rays.new_zeros(len(rays), 3))
     for j in range(lobes):
         p, t = fields[:, 7 * j : 7 * j + 7], teacher[:, 7 * j : 7 * j + 7]
         weight = t[:, 4:7].abs().mean(1, keepdim=True)
-        if log_amplitude:
+        if log_amplitude and photo is not None:
+            weight = weight.clamp(max=1.0)
+            sq = (light_share(p, linear, w0) - light_share(t, linear, w0)).square()
+            if balance:
+                lit = t[:, 4:7] > lo
+                total = total + _masked_mean(sq, lit) + _masked_mean(sq, ~lit)
+            else:
+                total = total + sq.mean()
+        elif log_amplitude:
             weight = weight.clamp(max=1.0)
             mine = torch.log(p[:, 4:7].clamp(min=1e-30, max=hi))
             told = torch.log(t[:, 4:7].clamp(min=lo, max=hi))

@@ -62,6 +62,13 @@ LOBE_DOMAINS = ("display", "linear", "linear-clamped")
 # else min(1, I / S(w0)), so that a lobe never holds more than its pixel; either way the
 # view at the photo's camera is the photo.
 CLIPPED = 1.0 - 0.5 / 255
+# Where a lobe head's amplitudes come from (NetConfig.amplitude). "free": the network gives
+# them. "photo" (linear-clamped only): it gives each lobe's share u of the pixel's own
+# light at the photo's view, and a = u I / G(w0), so that a view changes the pixel by
+# u I (exp(lambda mu . (w - w0)) - 1): the photo sets the scale, and the network learns a
+# bounded share (u > 1 only matters where the photo clipped, a highlight brighter than
+# white) while the axis and sharpness it learns no longer move the amplitude it must hit.
+LOBE_AMPLITUDES = ("free", "photo")
 # The inverse tone curve of the linear domains: the training data's display encoding is a
 # gamma between 2.2 and 5 (the paper's augmentation); 2.2 is its most common value and a
 # photo's sRGB curve's nearest power.
@@ -89,6 +96,8 @@ class NetConfig:
     lobes: int = 2
     # Where the lobe heads add their change: see LOBE_DOMAINS.
     domain: str = "display"
+    # Where the lobes' amplitudes come from: see LOBE_AMPLITUDES.
+    amplitude: str = "free"
 
     def __post_init__(self) -> None:
         if len(self.widths) != LEVELS or len(self.convs) != LEVELS:
@@ -105,6 +114,12 @@ class NetConfig:
             raise ValueError(f"unknown lobe domain {self.domain!r}: expected one of {LOBE_DOMAINS}")
         if self.domain == "linear-clamped" and self.head != "lobes":
             raise ValueError(f"lobe domain linear-clamped is for the lobes head, not {self.head}")
+        if self.amplitude not in LOBE_AMPLITUDES:
+            raise ValueError(
+                f"unknown lobe amplitude {self.amplitude!r}: expected one of {LOBE_AMPLITUDES}"
+            )
+        if self.amplitude == "photo" and self.domain != "linear-clamped":
+            raise ValueError("lobe amplitudes from the photo need the linear-clamped domain")
 
     @property
     def out_channels(self) -> int:
@@ -131,6 +146,7 @@ class NetConfig:
             deadzone=float(data.get("deadzone", 0.0)),
             lobes=int(data.get("lobes", 2)),
             domain=data.get("domain", "display"),
+            amplitude=data.get("amplitude", "free"),
         )
 
 
@@ -369,6 +385,9 @@ LOG_AMPLITUDE_RANGE = (1.0e-6, 1.0e4)
 AMPLITUDE_INIT = 1.0e-4
 AMPLITUDE_SEEN = 1.0e-3
 AMPLITUDE_MAX = 2.0
+# Amplitude "photo": each lobe's share of its pixel's light starts here, below the dead
+# zone for any pixel, and spans LOG_AMPLITUDE_RANGE as the free amplitudes do.
+SHARE_INIT = 1.0e-3
 # The axis is predicted as an offset from the input camera's own direction w_0, so that a
 # pixel seen at its highlight's peak needs an offset of zero; offsets are at most this long.
 AXIS_OFFSET_MAX = 1.0
@@ -388,14 +407,18 @@ def view_directions(disparity: torch.Tensor, rays: torch.Tensor, camera: torch.T
 class LobeField(nn.Module):
     """The decoder's raw channels -> lobes (B, 7K, H, W) in LOBE_LAYOUT order per lobe."""
 
-    def __init__(self, lobes: int, head: str = "lobes", domain: str = "display") -> None:
+    def __init__(
+        self, lobes: int, head: str = "lobes", domain: str = "display", amplitude: str = "free"
+    ) -> None:
         super().__init__()
         self.lobes = lobes
         self.head = head
         self.log_amplitude = domain == "linear-clamped"
+        self.from_photo = amplitude == "photo"
         lo_a, hi_a = (math.log(v) for v in LOG_AMPLITUDE_RANGE)
         self.amplitude_span = (lo_a, hi_a)
-        a = (math.log(AMPLITUDE_INIT) - lo_a) / (hi_a - lo_a)
+        init = SHARE_INIT if self.from_photo else AMPLITUDE_INIT
+        a = (math.log(init) - lo_a) / (hi_a - lo_a)
         self.amplitude_bias = math.log(a / (1 - a))
         lo, hi = (torch.log(torch.tensor(v)) for v in SHARPNESS_RANGE)
         self.register_buffer("log_sharpness", torch.stack([lo, hi]), persistent=False)
@@ -403,7 +426,13 @@ class LobeField(nn.Module):
         t = (torch.log(torch.tensor(SHARPNESS_INIT)) - lo) / (hi - lo)
         self.sharpness_bias = float(torch.log(t / (1 - t)))
 
-    def forward(self, raw: torch.Tensor, rays: torch.Tensor) -> torch.Tensor:
+    def forward(
+        self, raw: torch.Tensor, rays: torch.Tensor, image: torch.Tensor | None = None
+    ) -> torch.Tensor:
+        """`image` (B,3,H,W), the photo as the network sees it: needed for amplitude
+        "photo"."""
+        if self.from_photo and image is None:
+            raise ValueError("lobe amplitudes from the photo need the photo")
         w0 = view_directions(torch.zeros_like(rays[:, :1]), rays, rays.new_zeros(rays.shape[0], 3))
         lo, hi = self.log_sharpness[0], self.log_sharpness[1]
         parts = []
@@ -412,7 +441,10 @@ class LobeField(nn.Module):
             mu = w0 + AXIS_OFFSET_MAX * torch.tanh(p[:, 0:3])
             mu = mu / torch.sqrt((mu * mu).sum(1, keepdim=True) + 1e-12)
             sharp = torch.exp(lo + (hi - lo) * torch.sigmoid(p[:, 3:4] + self.sharpness_bias))
-            parts += [mu, sharp, self.amplitude(p[:, 4:7])]
+            amp = self.amplitude(p[:, 4:7])
+            if self.from_photo:
+                amp = self.photo_amplitude(amp, sharp, (mu * w0).sum(1, keepdim=True), image)
+            parts += [mu, sharp, amp]
         extra = raw[:, 7 * self.lobes :]
         if self.head == "lobes-flow":
             parts.append(LOBE_FLOW_MAX * torch.tanh(extra))
@@ -426,6 +458,15 @@ class LobeField(nn.Module):
             return AMPLITUDE_MAX * torch.tanh(raw)
         lo, hi = self.amplitude_span
         return torch.exp(lo + (hi - lo) * torch.sigmoid(raw + self.amplitude_bias))
+
+    def photo_amplitude(
+        self, share: torch.Tensor, sharp: torch.Tensor, cos0: torch.Tensor, image: torch.Tensor
+    ) -> torch.Tensor:
+        """u I / G(w0), in log so that a lobe far from the photo's view cannot overflow;
+        capped at the top of LOG_AMPLITUDE_RANGE as the free amplitudes are."""
+        linear = LINEAR_GAMMA * torch.log(image.clamp(min=LINEAR_FLOOR ** (1 / LINEAR_GAMMA)))
+        log_a = torch.log(share) + linear + sharp * (1.0 - cos0)
+        return torch.exp(log_a.clamp(max=self.amplitude_span[1]))
 
 
 # The "lobes-flow" head adds what a lobe cannot do alone: light that slides from one pixel
@@ -587,7 +628,9 @@ class ReshadeNet(nn.Module):
         self.encoder = Encoder(cfg)
         self.decoder = Decoder(cfg)
         self.lobe_field = (
-            LobeField(cfg.lobes, cfg.head, cfg.domain) if cfg.head in LOBE_HEADS else None
+            LobeField(cfg.lobes, cfg.head, cfg.domain, cfg.amplitude)
+            if cfg.head in LOBE_HEADS
+            else None
         )
         # He initialisation for LeakyReLU keeps activations from fading over the ~20 layers
         # between the camera features and the output (PyTorch's default init shrinks them,
@@ -644,7 +687,7 @@ class ReshadeNet(nn.Module):
     def lobes(self, image: torch.Tensor, disparity: torch.Tensor, rays: torch.Tensor):
         """The lobe head's once-per-photo output (B, 7K, H, W)."""
         bottleneck, skips = self.encoder(image, disparity)
-        return self.lobe_field(self.decoder.features(skips, bottleneck, None), rays)
+        return self.lobe_field(self.decoder.features(skips, bottleneck, None), rays, image)
 
 
 # Flat-signature wrappers for ONNX export as two graphs. Tensor names for the manifest:

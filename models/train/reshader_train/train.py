@@ -39,7 +39,15 @@ from .losses import (
     multi_target_loss,
     pixel_loss,
 )
-from .model import HEADS, LOBE_DOMAINS, NetConfig, ReshadeNet, count_parameters, net_config
+from .model import (
+    HEADS,
+    LOBE_AMPLITUDES,
+    LOBE_DOMAINS,
+    NetConfig,
+    ReshadeNet,
+    count_parameters,
+    net_config,
+)
 from .onnx_weights import load_onnx_weights
 
 CHECKPOINT = "checkpoint.pt"
@@ -101,6 +109,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="where the lobe heads add their change to the photo: the display encoding "
         "(exported) or linear radiance, the photo decoded with gamma 2.2 and encoded again "
         "(training experiments only, not exported)",
+    )
+    p.add_argument(
+        "--lobe-amplitude",
+        choices=LOBE_AMPLITUDES,
+        default="free",
+        help="where the lobes head's amplitudes come from: free (the network gives them) or "
+        "photo (with --lobe-domain linear-clamped: the network gives each lobe's share of its "
+        "pixel's light at the photo's view, and the photo sets the scale)",
     )
     p.add_argument(
         "--deadzone",
@@ -165,6 +181,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="lobe amplitudes in the linear-clamped domain: the teacher's lit and unlit "
         "pixels weigh equally in the fitted-field loss (default: every pixel the same, "
         "which lets the unlit majority outvote the lit pixels)",
+    )
+    p.add_argument(
+        "--teacher-share",
+        action="store_true",
+        help="lobe amplitudes in the linear-clamped domain: compare each lobe with its "
+        "teacher's by the share of the pixel's light it holds at the photo's view (squared), "
+        "not by the log of its amplitude; where the photo leaves doubt, the network then "
+        "settles on the mean share rather than the mean log, which the unlit majority drags "
+        "to the floor",
     )
     p.add_argument("--lr", type=float, default=1e-4)
     p.add_argument("--lr-final", type=float, default=1e-5)
@@ -555,6 +580,7 @@ class Teaching(NamedTuple):
     fraction: str
     log_amplitude: bool
     balance: bool = False
+    share: bool = False
 
 
 def train_step(
@@ -584,8 +610,15 @@ def train_step(
     else:
         loss, parts = criterion(pred, b["target"], b["mask"], b["image"])
     if teach is not None:
+        photo = (b["image"], b["rays"]) if teach.share else None
         taught = field_loss(
-            fields, b["teacher"], teach.lobes, teach.fraction, teach.log_amplitude, teach.balance
+            fields,
+            b["teacher"],
+            teach.lobes,
+            teach.fraction,
+            teach.log_amplitude,
+            teach.balance,
+            photo,
         )
         loss = loss + teach.weight * taught
         parts = {**parts, "loss": float(loss.detach()), "teacher": float(taught.detach())}
@@ -624,9 +657,12 @@ def train(args: argparse.Namespace) -> ReshadeNet:
         deadzone=args.deadzone,
         lobes=args.lobes,
         domain=args.lobe_domain,
+        amplitude=args.lobe_amplitude,
     )
     if args.teacher:
         check_teacher(args.teacher, cfg)
+    if args.teacher_share and not (args.teacher and cfg.domain == "linear-clamped"):
+        raise ValueError("--teacher-share needs --teacher and --lobe-domain linear-clamped")
     net = ReshadeNet(cfg).to(d.device)
     opt = torch.optim.Adam(param_groups(net, args.head_lr_scale), lr=args.lr)
     step = restore(args.run_dir, net, opt, criterion.ident, d)
@@ -683,6 +719,7 @@ def train(args: argparse.Namespace) -> ReshadeNet:
                     args.teacher_distance,
                     cfg.domain == "linear-clamped",
                     args.teacher_balance,
+                    args.teacher_share,
                 )
                 if args.teacher
                 else None

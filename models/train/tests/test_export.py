@@ -654,6 +654,23 @@ def test_a_lobe_checkpoint_the_runtime_cannot_evaluate_is_refused_with_the_reaso
     assert not out.exists() or not list(out.iterdir())
 
 
+def test_a_linear_clamped_lobe_checkpoint_with_photo_amplitudes_exports(data, tmp_path):
+    net = ReshadeNet(replace(lobe_net().cfg, domain="linear-clamped", amplitude="photo"))
+    ckpt = tmp_path / "photo.pt"
+    torch.save({"model": net.state_dict(), "net_config": net.cfg.to_json(), "step": 4,
+                "args": {"data": str(data)}}, ckpt)  # fmt: skip
+    out = tmp_path / "out"
+    argv = ["export", str(ckpt), "--out", str(out), "--precision", "fp32",
+            "--height", "32", "--width", "64"]  # fmt: skip
+    assert cli.main(argv) == 0
+    (path,) = out.glob("*.json")
+    m = json.loads(path.read_text())
+    assert m["domain"] == "linear-clamped" and m["architecture"]["amplitude"] == "photo"
+    assert "linear-clamped" in m["shading"]
+    parity = m["validation"]["onnxruntime_vs_pytorch"]
+    assert "amplitudes" in parity["compared"] and max(parity["shaded"].values()) < 1e-4
+
+
 def test_cli_exports_a_lobe_checkpoint_and_quantize_fine_tunes_it(data, tmp_path, capsys):
     ckpt = lobe_checkpoint(tmp_path, data)
     out = tmp_path / "out"

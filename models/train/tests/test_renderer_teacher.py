@@ -14,12 +14,14 @@ from test_train import TINY
 
 from reshader_train.cli import main
 from reshader_train.data import FieldTargets, load_example, make_sample
-from reshader_train.losses import field_loss
+from reshader_train.losses import field_loss, light_share
 from reshader_train.model import (
     AMPLITUDE_INIT,
     AMPLITUDE_SEEN,
     LINEAR_GAMMA,
+    SHARE_INIT,
     LobeField,
+    NetConfig,
     lobe_sum,
     shade_lobes,
     view_directions,
@@ -103,6 +105,36 @@ def test_linear_clamped_amplitudes_start_faint_and_stay_positive():
     assert AMPLITUDE_INIT < AMPLITUDE_SEEN
 
 
+def test_photo_amplitudes_are_a_share_of_the_pixel_s_own_light():
+    torch.manual_seed(0)
+    field = LobeField(1, "lobes", "linear-clamped", "photo")
+    image = torch.rand(1, 3, 4, 4) * 0.8 + 0.1
+    rays = torch.cat([torch.rand(1, 2, 4, 4) - 0.5, torch.ones(1, 1, 4, 4)], 1)
+    w0 = view_directions(torch.zeros(1, 1, 4, 4), rays, torch.zeros(1, 3))
+    raw = 0.3 * torch.randn(1, 7, 4, 4)  # sharpness 24-380
+    raw[:, 0:3] *= 0.1  # axes within a few degrees of the view
+    raw[:, 4:7] = 0.0  # the untrained share
+    out = field(raw, rays, image)
+    # What the lobe shows at the photo's view is the share times the pixel's linear light,
+    # whatever the axis and sharpness: those move the light, not how much of it there is.
+    at_photo = lobe_sum(out, w0)
+    assert torch.allclose(at_photo, SHARE_INIT * image**LINEAR_GAMMA, rtol=1e-4)
+    assert 0.0 < (raw[:, 0:4].abs().max()) and not torch.allclose(out[:, 3], out[:, 3].mean())
+    # A sharp lobe far from the view would need an amplitude past any float: it is capped.
+    raw[:, 0:3], raw[:, 3] = torch.tensor([5.0, 5.0, 5.0])[:, None, None], 50.0
+    far = field(raw, rays, image)
+    assert torch.isfinite(far).all() and torch.allclose(far[:, 4:7].max(), torch.tensor(1e4))
+    with pytest.raises(ValueError, match="need the photo"):
+        field(raw, rays)
+
+
+def test_photo_amplitudes_need_the_linear_clamped_domain():
+    with pytest.raises(ValueError, match="linear-clamped"):
+        NetConfig(widths=(4,) * 6, head="lobes", domain="display", amplitude="photo")
+    with pytest.raises(ValueError, match="unknown lobe amplitude"):
+        NetConfig(widths=(4,) * 6, head="lobes", domain="linear-clamped", amplitude="fixed")
+
+
 def test_hdr_fields_are_tone_mapped_with_the_sample():
     fields = np.zeros((2, 2, 11), np.float32)
     fields[..., 4:7] = 0.1  # a lobe of HDR peak 0.1
@@ -165,6 +197,32 @@ def test_balanced_amplitudes_weigh_a_few_lit_pixels_as_much_as_the_unlit_rest():
     assert float(balanced) == pytest.approx(float(plain))
 
 
+def test_shares_settle_on_the_mean_share_where_the_log_distance_settles_on_the_floor():
+    """Where the photo cannot tell a lit pixel (share 1/2) from its unlit twins, a network
+    must give them one lobe: compared by shares it is pulled towards the mean share, where
+    the log distance pulls it down to the unlit pixels' floor."""
+    rays = torch.cat([torch.zeros(1, 2, 4, 4), torch.ones(1, 1, 4, 4)], 1)
+    image = torch.full((1, 3, 4, 4), 0.5)
+    linear = 0.5**LINEAR_GAMMA
+    w0 = view_directions(torch.zeros(1, 1, 4, 4), rays, torch.zeros(1, 3))
+    t = torch.cat([w0, torch.full((1, 1, 4, 4), 100.0), torch.zeros(1, 3, 4, 4)], 1)
+    t[:, 4:7, :, :2] = linear  # share 1, u / (1 + u) = 1/2, in half the pixels
+    # One lobe everywhere, at a quarter of the lit share: the mean of the squared share
+    # distance is at the mean (1/4, u = 1/3); the log distance's, at the unlit floor.
+    guess = t.clone()
+    guess[:, 4:7] = linear / 3.0
+    assert float(light_share(guess, torch.full_like(image, linear), w0).mean()) == (
+        pytest.approx(0.25)
+    )
+    for share, settled in ((True, True), (False, False)):
+        g = guess.clone().requires_grad_(True)
+        photo = (image, rays) if share else None
+        field_loss(g, t, 1, log_amplitude=True, photo=photo).backward()
+        grad = float(g.grad[:, 4:7].sum())
+        assert (abs(grad) < 1e-6) if settled else grad > 0, (share, grad)
+    assert float(field_loss(t, t, 1, log_amplitude=True, photo=(image, rays))) == 0.0
+
+
 @pytest.fixture(scope="module")
 def renderer_fields(analytic, tmp_path_factory):
     """test_teacher's analytic examples and the renderer's two lobes for each."""
@@ -225,6 +283,21 @@ def test_train_with_renderer_lobes_needs_their_domain(renderer_fields, tmp_path,
     with open(tmp_path / "run" / "log.csv", newline="") as f:
         rows = list(csv.DictReader(f))
     assert len(rows) == 2 and all(math.isfinite(float(r["teacher"])) for r in rows)
+
+
+def test_train_with_photo_amplitudes_taught_by_shares(renderer_fields, tmp_path, capsys):
+    data, fields = renderer_fields
+    argv = ["train", "--data", str(data), "--run-dir", str(tmp_path / "run"), "--size", TINY,
+            "--steps", "2", "--batch-size", "2", "--crop", "32", "--workers", "0",
+            "--threads", "1", "--log-every", "1", "--no-progress", "--head", "lobes",
+            "--lobes", "2", "--loss-weights", "1,0,0", "--targets-per-example", "2",
+            "--teacher-share", "--lobe-domain", "linear-clamped"]  # fmt: skip
+    assert main(argv) != 0
+    assert "--teacher-share needs --teacher" in capsys.readouterr().err
+    assert main([*argv, "--teacher", str(fields), "--lobe-amplitude", "photo"]) == 0
+    with open(tmp_path / "run" / "log.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
+    assert len(rows) == 2 and all(0 < float(r["teacher"]) < 10 for r in rows)
 
 
 def test_teacher_check_reads_a_lobes_network_against_the_renderer(

@@ -59,8 +59,27 @@ pub const LOBE_LAYOUT: [&str; 7] = [
 pub const SLIDE_LAYOUT: [&str; 4] = ["fraction_r", "fraction_g", "fraction_b", "rho"];
 /// Lobes per pixel the training toolchain can make (NetConfig: 1..8).
 pub const MAX_LOBES: u64 = 8;
-/// The encoding the lobe head's change is summed in.
-pub const LOBE_DOMAIN: &str = "display";
+/// Where the lobe head adds its change to the photo (the manifest's `domain`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum LobeDomain {
+    /// `photo + change`, in the display encoding.
+    Display,
+    /// In linear light (the photo decoded with gamma 2.2), never taking more light from a
+    /// pixel than it has, and letting a highlight the photo clipped be brighter than white:
+    /// model.shade_lobes with domain "linear-clamped" (head `lobes` only).
+    LinearClamped,
+}
+
+impl LobeDomain {
+    pub const ALL: [LobeDomain; 2] = [LobeDomain::Display, LobeDomain::LinearClamped];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            LobeDomain::Display => "display",
+            LobeDomain::LinearClamped => "linear-clamped",
+        }
+    }
+}
 
 /// What the runtime needs from a lobe-head manifest beyond the common fields.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -71,6 +90,7 @@ pub struct LobeSpec {
     pub deadzone: f32,
     /// Head `lobes-slide`: the graph also gives a sliding layer ([`SLIDE_LAYOUT`]).
     pub slide: bool,
+    pub domain: LobeDomain,
 }
 
 impl LobeSpec {
@@ -146,16 +166,23 @@ pub fn lobe_spec(path: &Path, manifest: &Manifest) -> Result<LobeSpec, ManifestE
         Some(t) => return err("deadzone", format!("is {t}; expected 0 <= deadzone < 0.5")),
         None => return err("deadzone", "is missing".into()),
     };
-    match manifest.domain.as_deref() {
-        Some(LOBE_DOMAIN) => {}
-        Some(other) => {
-            return err(
-                "domain",
-                format!("is {other:?}; the runtime adds the change in {LOBE_DOMAIN:?}"),
-            )
-        }
+    let domain = match manifest.domain.as_deref() {
+        Some(name) => match LobeDomain::ALL.into_iter().find(|d| d.name() == name) {
+            Some(LobeDomain::LinearClamped) if slide => {
+                return err(
+                    "domain",
+                    "is \"linear-clamped\", which is for head \"lobes\", not \"lobes-slide\""
+                        .into(),
+                )
+            }
+            Some(d) => d,
+            None => {
+                let names: Vec<_> = LobeDomain::ALL.iter().map(|d| d.name()).collect();
+                return err("domain", format!("is {name:?}; expected one of {names:?}"));
+            }
+        },
         None => return err("domain", "is missing".into()),
-    }
+    };
     if let Some(d) = manifest.disparity_depth {
         if d != 0.25 {
             return err(
@@ -168,6 +195,7 @@ pub fn lobe_spec(path: &Path, manifest: &Manifest) -> Result<LobeSpec, ManifestE
         lobes: k,
         deadzone,
         slide,
+        domain,
     };
     let (i, out) = manifest
         .outputs

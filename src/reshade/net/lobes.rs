@@ -26,6 +26,16 @@
 //! change += S(x − s_x·fx, y − s_y·fy) − S(x, y)          (bilinear, clamped to the image)
 //! ```
 //!
+//! Domain `linear-clamped` (head `lobes`) sums the lobes in linear light instead, per
+//! colour, with L = photo^2.2, S = Σ_j a_j G_j(w) and S0 the same at w0:
+//!
+//! ```text
+//! k      = 1 where the photo clipped, else min(1, L / S0)   (never take more than the pixel has)
+//! dug    = max(S0 − L, 0) where the photo clipped, else 0  (a clipped highlight may exceed white)
+//! change = soft threshold of min(L + k (S − S0) + dug, 1) − L by the dead zone
+//! view   = photo where change = 0, else max(L + change, 1e-4)^(1/2.2)
+//! ```
+//!
 //! This is
 //! `shade_lobes` of the training toolchain's model.py, operation for operation in f32, so
 //! that c = 0 gives the photo exactly and other cameras match PyTorch to float rounding.
@@ -45,7 +55,7 @@ use std::sync::{Arc, Mutex};
 
 use crate::depth::DepthMap;
 use crate::engine::manifest::{
-    self, LobeSpec, ManifestError, Precision, Task, VerifiedModel, LOBE_LAYOUT,
+    self, LobeDomain, LobeSpec, ManifestError, Precision, Task, VerifiedModel, LOBE_LAYOUT,
 };
 use crate::engine::resample;
 use crate::engine::{Engine, ModelSource, Plan, Tensor};
@@ -70,6 +80,11 @@ const GEOMETRY: usize = 4;
 const PER_LOBE_STORED: usize = PER_LOBE + 1;
 /// model.SLIDE_MIN_DEPTH_RATIO: the layer's point stays in front of a forward-moving camera.
 const SLIDE_MIN_DEPTH_RATIO: f32 = 0.05;
+/// model.LINEAR_GAMMA, LINEAR_FLOOR and CLIPPED: the linear-clamped domain's inverse tone
+/// curve, the floor that keeps its slope finite, and the level a pixel counts as clipped at.
+const LINEAR_GAMMA: f32 = 2.2;
+const LINEAR_FLOOR: f32 = 1e-4;
+const CLIPPED: f32 = 1.0 - 0.5 / 255.0;
 
 fn is_lobes(task: Task) -> bool {
     task == Task::ReshadeLobes
@@ -140,6 +155,9 @@ pub struct LobeField {
     data: Vec<f32>,
     /// lobes-slide: the sliding layer S = photo · fraction, RGB per pixel; else empty.
     layer: Vec<f32>,
+    /// Domain linear-clamped: the photo the lobes were computed for, RGB per pixel; else
+    /// empty.
+    photo: Vec<f32>,
     /// Pixels per unit of normalised coordinate, from the rays as PyTorch takes them.
     focal: [f32; 2],
 }
@@ -189,6 +207,13 @@ impl LobeField {
                 l[PER_LOBE] = lobe_value([l[0], l[1], l[2]], l[3], w0);
             }
         }
+        let photo = if spec.domain == LobeDomain::LinearClamped {
+            (0..3 * plane)
+                .map(|j| image[(j % 3) * plane + j / 3])
+                .collect()
+        } else {
+            Vec::new()
+        };
         let mut layer = Vec::new();
         if spec.slide {
             let extra = PER_LOBE * k;
@@ -215,6 +240,7 @@ impl LobeField {
             spec,
             data,
             layer,
+            photo,
             focal,
         })
     }
@@ -242,8 +268,11 @@ impl LobeField {
         let px = &self.data[i * stride..][..stride];
         let r = [px[1], px[2], px[3]];
         let w = direction(px[0], r, c);
-        let mut change = [0.0f32; 3];
         let lobes = &px[GEOMETRY..GEOMETRY + self.spec.lobes * PER_LOBE_STORED];
+        if self.spec.domain == LobeDomain::LinearClamped {
+            return self.clamped_change(i, lobes, w);
+        }
+        let mut change = [0.0f32; 3];
         for l in lobes.chunks_exact(PER_LOBE_STORED) {
             let d = lobe_value([l[0], l[1], l[2]], l[3], w) - l[PER_LOBE];
             change[0] += l[4] * d;
@@ -258,6 +287,38 @@ impl LobeField {
         }
         let t = self.spec.deadzone;
         change.map(|v| shrink(v, t))
+    }
+
+    /// The change of pixel `i` in the linear-clamped domain (see the module comment), as the
+    /// display value it leads to less the photo's, for the lobes `lobes` seen along `w`.
+    #[inline]
+    fn clamped_change(&self, i: usize, lobes: &[f32], w: [f32; 3]) -> [f32; 3] {
+        let (mut s, mut s0) = ([0.0f32; 3], [0.0f32; 3]);
+        for l in lobes.chunks_exact(PER_LOBE_STORED) {
+            let g = lobe_value([l[0], l[1], l[2]], l[3], w);
+            for ch in 0..3 {
+                s[ch] += l[4 + ch] * g;
+                s0[ch] += l[4 + ch] * l[PER_LOBE];
+            }
+        }
+        let t = self.spec.deadzone;
+        std::array::from_fn(|ch| {
+            let photo = self.photo[3 * i + ch];
+            let linear = photo.max(0.0).powf(LINEAR_GAMMA);
+            let clipped = photo >= CLIPPED;
+            let (k, dug) = if clipped {
+                (1.0, (s0[ch] - linear).max(0.0))
+            } else {
+                ((linear / s0[ch].max(1e-12)).min(1.0), 0.0)
+            };
+            let moved = (linear + k * (s[ch] - s0[ch]) + dug).min(1.0);
+            let change = shrink(moved - linear, t);
+            if change == 0.0 {
+                0.0
+            } else {
+                (linear + change).max(LINEAR_FLOOR).powf(1.0 / LINEAR_GAMMA) - photo
+            }
+        })
     }
 
     /// The sliding layer's change at pixel `i` (disparity ratio `q`, layer depth share `rho`,

@@ -7,6 +7,7 @@ fn spec(lobes: usize, deadzone: f32) -> LobeSpec {
         lobes,
         deadzone,
         slide: false,
+        domain: LobeDomain::Display,
     }
 }
 
@@ -54,6 +55,51 @@ fn the_closed_form_matches_hand_computed_values() {
     let v = view.get(0, 0);
     assert!((f64::from(v[0]) - (0.5 + 0.4 * drop)).abs() < 1e-6, "{v:?}");
     assert!((f64::from(v[2]) - (0.5 - 0.2 * drop)).abs() < 1e-6, "{v:?}");
+}
+
+/// The same pixel and camera in the linear-clamped domain, where a lobe holds at most its
+/// pixel's light: a lobe at the photo's view with amplitude a ≥ L (L = 0.5^2.2) is scaled
+/// to L, so the view is L·G in linear light, 0.5·G^(1/2.2) displayed, whatever a. Where the
+/// photo clipped (1.0) the lobe may be brighter than white: a = 4 keeps its 4, and the view
+/// is min(4·G, 1) in linear light.
+#[test]
+fn the_linear_clamped_domain_never_takes_more_than_the_pixel_has() {
+    let clamped = LobeSpec {
+        domain: LobeDomain::LinearClamped,
+        ..spec(1, 0.0)
+    };
+    let g = (50.0 * (1.0 / 1.09f64.sqrt() - 1.0)).exp();
+    for (photo, amp, want) in [
+        (0.5f32, 1.0f32, 0.5 * g.powf(1.0 / 2.2)),
+        (0.5, 30.0, 0.5 * g.powf(1.0 / 2.2)),
+        (1.0, 1.0, g.powf(1.0 / 2.2)),
+        (1.0, 4.0, (4.0 * g).min(1.0).powf(1.0 / 2.2)),
+    ] {
+        let lobes = [0.0, 0.0, -1.0, 50.0, amp, amp, amp];
+        let field = LobeField::new(
+            clamped,
+            1,
+            1,
+            &lobes,
+            &[photo; 3],
+            &[0.25],
+            &[0.0, 0.0, 1.0],
+        )
+        .unwrap();
+        assert_eq!(
+            field.change([0.0; 3], 1),
+            [0.0; 3],
+            "photo {photo}, a {amp}"
+        );
+        let got = field.change([0.3, 0.0, 0.0], 1);
+        for c in got {
+            let view = f64::from(photo + c);
+            assert!(
+                (view - want).abs() < 1e-5,
+                "photo {photo}, a {amp}: {view} vs {want}"
+            );
+        }
+    }
 }
 
 #[test]

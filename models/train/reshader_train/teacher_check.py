@@ -11,8 +11,9 @@ brightest tenth holds all of it) and *how much* (the two mean fractions).
 
 For a "lobes" network (the renderer's lobes, `teacher --source renderer`) it says the same
 of the lobes: at the pixels the teacher lights (a lobe of at least AMPLITUDE_SEEN) the
-median amplitude of each, in log10, the network's at the others, and how well the lit
-pixels' axes and sharpnesses agree.
+median amplitude of each, in log10, the network's at the others, the same of the share
+of the pixel's light each lobe holds at the photo's view (u/(1 + u), `losses.light_share`),
+and how well the lit pixels' axes and sharpnesses agree.
 """
 
 from __future__ import annotations
@@ -46,10 +47,13 @@ def selection(network: np.ndarray, teacher: np.ndarray) -> dict[str, float]:
     }
 
 
-def lobe_agreement(network: np.ndarray, teacher: np.ndarray) -> dict[str, float] | None:
+def lobe_agreement(
+    network: np.ndarray, teacher: np.ndarray, shares: tuple[np.ndarray, np.ndarray]
+) -> dict[str, float] | None:
     """How the first lobe of two (7K, H, W) field maps agree where the teacher's shines
     (None if nowhere): median log10 amplitudes (mean of the colours) there, the network's
-    elsewhere, the mean cosine of the axes and the median log10 sharpness ratio there."""
+    elsewhere, the same of their `shares` (network's, teacher's: (H, W) each), the mean
+    cosine of the axes and the median log10 sharpness ratio there."""
     from .model import AMPLITUDE_SEEN
 
     amp_n, amp_t = network[4:7].mean(0), teacher[4:7].mean(0)
@@ -57,7 +61,11 @@ def lobe_agreement(network: np.ndarray, teacher: np.ndarray) -> dict[str, float]
     if not lit.any():
         return None
     log = np.log10
+    share_n, share_t = shares
     return {
+        "network_share_lit": float(np.median(share_n[lit])),
+        "teacher_share_lit": float(np.median(share_t[lit])),
+        "network_share_unlit": float(np.median(share_n[~lit])) if (~lit).any() else float("nan"),
         "lit_share": float(lit.mean()),
         "network_amplitude_lit": float(np.median(log(np.maximum(amp_n[lit], 1e-30)))),
         "teacher_amplitude_lit": float(np.median(log(amp_t[lit]))),
@@ -69,10 +77,30 @@ def lobe_agreement(network: np.ndarray, teacher: np.ndarray) -> dict[str, float]
     }
 
 
-def compare(head: str, lobes: int, network: np.ndarray, teacher: np.ndarray) -> dict | None:
-    """The head's agreement with its teacher on one example (None: nothing to compare)."""
+def first_lobe_shares(
+    network: torch.Tensor, teacher: torch.Tensor, image: torch.Tensor, rays: torch.Tensor
+) -> tuple[np.ndarray, np.ndarray]:
+    """`light_share` of the first lobe of (1, 7K, H, W) fields, network's and teacher's,
+    for the photo `image` (1,3,H,W) and its `rays`, mean of the colours: (H, W) each."""
+    from .losses import light_share
+    from .model import LINEAR_FLOOR, LINEAR_GAMMA, view_directions
+
+    linear = (image.clamp(min=0.0) ** LINEAR_GAMMA).clamp(min=LINEAR_FLOOR)
+    w0 = view_directions(torch.zeros_like(rays[:, :1]), rays, rays.new_zeros(1, 3))
+    return tuple(light_share(f[:, :7], linear, w0)[0].mean(0).numpy() for f in (network, teacher))
+
+
+def compare(
+    head: str,
+    lobes: int,
+    network: np.ndarray,
+    teacher: np.ndarray,
+    shares: tuple[np.ndarray, np.ndarray] | None = None,
+) -> dict | None:
+    """The head's agreement with its teacher on one example (None: nothing to compare);
+    `shares` (head lobes): the first lobes' `first_lobe_shares`."""
     if head == "lobes":
-        return lobe_agreement(network, teacher)
+        return lobe_agreement(network, teacher, shares)
     layer = slice(7 * lobes, 7 * lobes + 3)  # the sliding fraction's three colours
     taught = teacher[layer].mean(0)
     if taught.mean() < 1e-4:
@@ -100,7 +128,13 @@ def check(net, data: Path, teacher: Path, count: int, seed: int) -> list[dict]:
             pad_to_multiple(s["rays"][None]),
             fields=True,
         )
-        row = compare(net.cfg.head, lobes, fields[0, :, :h, :w].numpy(), s["teacher"].numpy())
+        fields = fields[:, :, :h, :w]
+        shares = None
+        if net.cfg.head == "lobes":
+            shares = first_lobe_shares(
+                fields, s["teacher"][None], s["image"][None], s["rays"][None]
+            )
+        row = compare(net.cfg.head, lobes, fields[0].numpy(), s["teacher"].numpy(), shares)
         if row is not None:
             rows.append({"example": ds.example(int(idx)).name, **row})
     return rows
@@ -112,7 +146,10 @@ def summary_line(head: str, count: int, means: dict[str, float]) -> str:
             f"{count} examples with a lit teacher ({means['lit_share']:.0%} of their pixels); "
             f"median log10 amplitude where lit: network {means['network_amplitude_lit']:.2f}, "
             f"teacher {means['teacher_amplitude_lit']:.2f}; elsewhere network "
-            f"{means['network_amplitude_unlit']:.2f}; axis cosine where lit "
+            f"{means['network_amplitude_unlit']:.2f}; median share of the pixel's light "
+            f"(u/(1+u)) where lit: network {means['network_share_lit']:.3f}, teacher "
+            f"{means['teacher_share_lit']:.3f}; elsewhere network "
+            f"{means['network_share_unlit']:.3f}; axis cosine where lit "
             f"{means['axis_cosine_lit']:.3f}; log10 sharpness ratio "
             f"{means['sharpness_ratio_lit']:+.2f}"
         )

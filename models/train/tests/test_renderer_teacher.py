@@ -316,6 +316,8 @@ def test_teacher_check_reads_a_lobes_network_against_the_renderer(
     assert means["network_amplitude_lit"] == pytest.approx(math.log10(AMPLITUDE_INIT), abs=0.01)
     assert means["teacher_amplitude_lit"] > math.log10(AMPLITUDE_SEEN)
     assert 0 < means["lit_share"] <= 1
+    # Its shares of the pixels' light are as faint; the teacher's lit lobes hold some.
+    assert 0 <= means["network_share_lit"] < 0.01 < means["teacher_share_lit"] < 1
 
 
 def test_depth_normals_of_a_plane_are_its_normal_and_face_the_camera():

@@ -624,12 +624,19 @@ def test_lobes_slide_exports_its_layer_and_shades_like_pytorch(tmp_path, precisi
     assert np.array_equal(shade(got, (0.0, 0.0, 0.0)), feed["image"].numpy())
 
 
-def lobe_checkpoint(tmp_path, data):
-    net = lobe_net()
+def lobe_checkpoint(tmp_path, data, net=None):
+    """A training checkpoint of `net` (default: lobe_net()) in tmp_path."""
+    net = net or lobe_net()
     path = tmp_path / "lobes.pt"
     torch.save({"model": net.state_dict(), "net_config": net.cfg.to_json(), "step": 4,
                 "args": {"data": str(data)}}, path)  # fmt: skip
     return path
+
+
+def export_fp32(ckpt, out) -> int:
+    """`export` of `ckpt` at fp32 and 32x64 into `out`; its exit status."""
+    return cli.main(["export", str(ckpt), "--out", str(out), "--precision", "fp32",
+                     "--height", "32", "--width", "64"])  # fmt: skip
 
 
 @pytest.mark.parametrize(
@@ -642,27 +649,17 @@ def lobe_checkpoint(tmp_path, data):
 def test_a_lobe_checkpoint_the_runtime_cannot_evaluate_is_refused_with_the_reason(
     data, tmp_path, capsys, change, reason
 ):
-    net = ReshadeNet(replace(lobe_net().cfg, **change))
-    ckpt = tmp_path / "experiment.pt"
-    torch.save({"model": net.state_dict(), "net_config": net.cfg.to_json(), "step": 4,
-                "args": {"data": str(data)}}, ckpt)  # fmt: skip
+    ckpt = lobe_checkpoint(tmp_path, data, ReshadeNet(replace(lobe_net().cfg, **change)))
     out = tmp_path / "out"
-    argv = ["export", str(ckpt), "--out", str(out), "--precision", "fp32",
-            "--height", "32", "--width", "64"]  # fmt: skip
-    assert cli.main(argv) != 0
+    assert export_fp32(ckpt, out) != 0
     assert reason in capsys.readouterr().err
     assert not out.exists() or not list(out.iterdir())
 
 
 def test_a_linear_clamped_lobe_checkpoint_with_photo_amplitudes_exports(data, tmp_path):
-    net = ReshadeNet(replace(lobe_net().cfg, domain="linear-clamped", amplitude="photo"))
-    ckpt = tmp_path / "photo.pt"
-    torch.save({"model": net.state_dict(), "net_config": net.cfg.to_json(), "step": 4,
-                "args": {"data": str(data)}}, ckpt)  # fmt: skip
+    cfg = replace(lobe_net().cfg, domain="linear-clamped", amplitude="photo")
     out = tmp_path / "out"
-    argv = ["export", str(ckpt), "--out", str(out), "--precision", "fp32",
-            "--height", "32", "--width", "64"]  # fmt: skip
-    assert cli.main(argv) == 0
+    assert export_fp32(lobe_checkpoint(tmp_path, data, ReshadeNet(cfg)), out) == 0
     (path,) = out.glob("*.json")
     m = json.loads(path.read_text())
     assert m["domain"] == "linear-clamped" and m["architecture"]["amplitude"] == "photo"

@@ -270,34 +270,38 @@ def test_renderer_teacher_refuses_examples_it_did_not_render(renderer_fields, tm
         assert not list((tmp_path / "f").glob("*.npy"))
 
 
-def test_train_with_renderer_lobes_needs_their_domain(renderer_fields, tmp_path, capsys):
-    data, fields = renderer_fields
-    argv = ["train", "--data", str(data), "--run-dir", str(tmp_path / "run"), "--size", TINY,
+def tiny_lobe_training(data, run_dir) -> list[str]:
+    """`train` of a tiny lobes K = 2 network for two steps on `data`."""
+    return ["train", "--data", str(data), "--run-dir", str(run_dir), "--size", TINY,
             "--steps", "2", "--batch-size", "2", "--crop", "32", "--workers", "0",
             "--threads", "1", "--log-every", "1", "--no-progress", "--head", "lobes",
-            "--lobes", "2", "--loss-weights", "1,0,0", "--targets-per-example", "2",
-            "--teacher", str(fields)]  # fmt: skip
+            "--lobes", "2", "--loss-weights", "1,0,0", "--targets-per-example", "2"]  # fmt: skip
+
+
+def teacher_column(run_dir) -> list[float]:
+    with open(run_dir / "log.csv", newline="") as f:
+        return [float(r["teacher"]) for r in csv.DictReader(f)]
+
+
+def test_train_with_renderer_lobes_needs_their_domain(renderer_fields, tmp_path, capsys):
+    data, fields = renderer_fields
+    argv = [*tiny_lobe_training(data, tmp_path / "run"), "--teacher", str(fields)]
     assert main(argv) != 0
     assert "--lobe-domain linear-clamped" in capsys.readouterr().err
     assert main([*argv, "--lobe-domain", "linear-clamped"]) == 0
-    with open(tmp_path / "run" / "log.csv", newline="") as f:
-        rows = list(csv.DictReader(f))
-    assert len(rows) == 2 and all(math.isfinite(float(r["teacher"])) for r in rows)
+    taught = teacher_column(tmp_path / "run")
+    assert len(taught) == 2 and all(math.isfinite(t) for t in taught)
 
 
 def test_train_with_photo_amplitudes_taught_by_shares(renderer_fields, tmp_path, capsys):
     data, fields = renderer_fields
-    argv = ["train", "--data", str(data), "--run-dir", str(tmp_path / "run"), "--size", TINY,
-            "--steps", "2", "--batch-size", "2", "--crop", "32", "--workers", "0",
-            "--threads", "1", "--log-every", "1", "--no-progress", "--head", "lobes",
-            "--lobes", "2", "--loss-weights", "1,0,0", "--targets-per-example", "2",
-            "--teacher-share", "--lobe-domain", "linear-clamped"]  # fmt: skip
+    argv = [*tiny_lobe_training(data, tmp_path / "run"), "--teacher-share", "--lobe-domain",
+            "linear-clamped"]  # fmt: skip
     assert main(argv) != 0
     assert "--teacher-share needs --teacher" in capsys.readouterr().err
     assert main([*argv, "--teacher", str(fields), "--lobe-amplitude", "photo"]) == 0
-    with open(tmp_path / "run" / "log.csv", newline="") as f:
-        rows = list(csv.DictReader(f))
-    assert len(rows) == 2 and all(0 < float(r["teacher"]) < 10 for r in rows)
+    taught = teacher_column(tmp_path / "run")
+    assert len(taught) == 2 and all(0 < t < 10 for t in taught)
 
 
 def test_teacher_check_reads_a_lobes_network_against_the_renderer(

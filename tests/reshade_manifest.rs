@@ -358,12 +358,23 @@ mod lobes {
         assert!(residual.contains("head residual"), "{residual}");
         let lobes = description(&["--model", d, "--precision", "fp32", "--head", "lobes"]).unwrap();
         assert!(
-            lobes.contains("head lobes") && lobes.contains("reshade-fixture-fp32-lobes"),
+            lobes.contains("head lobes")
+                && lobes.contains("in the display domain")
+                && lobes.contains("reshade-fixture-fp32-lobes"),
             "{lobes}"
         );
         // int8: the weights-only lobe graph, found by its manifest whatever its name.
         let int8 = description(&["--model", d, "--precision", "int8", "--head", "lobes"]).unwrap();
         assert!(int8.contains("reshade-fixture-int8-wo-lobes"), "{int8}");
+        // A folder of linear-clamped lobes says so.
+        let photo = fixture_dir().join("photo");
+        let clamped = description(&["--model", photo.to_str().unwrap(), "--precision", "fp32"]);
+        let clamped = clamped.unwrap();
+        assert!(
+            clamped.contains("in the linear-clamped domain")
+                && clamped.contains("reshade-fixture-photo-fp32-lobes"),
+            "{clamped}"
+        );
     }
 
     #[test]

@@ -631,12 +631,13 @@ impl Reshader for LobeReshader {
         let o = &self.options;
         let sha: String = m.sha256.trim().chars().take(12).collect();
         format!(
-            "{} {} ({}, head {}: {} lobes, dead zone {}, graph {sha}, engine {} x{} threads once per photo at scale {}, longest side {}; closed form per view on {} threads{})",
+            "{} {} ({}, head {}: {} lobes in the {} domain, dead zone {}, graph {sha}, engine {} x{} threads once per photo at scale {}, longest side {}; closed form per view on {} threads{})",
             m.name,
             m.version,
             m.precision,
             self.spec.head(),
             self.spec.lobes,
+            self.spec.domain.name(),
             self.spec.deadzone,
             self.engine.name(),
             self.engine.threads(),

@@ -142,6 +142,29 @@ def residual_at(
 
 
 @torch.no_grad()
+def lobe_change_at(
+    net: ReshadeNet,
+    image: torch.Tensor,
+    disparity: torch.Tensor,
+    rays: torch.Tensor,
+    camera: torch.Tensor,
+    scale: float,
+) -> torch.Tensor:
+    """A lobe head's change (view − input) for `camera` with its network and closed form at
+    `scale` of the image's size, as the runtime's working size runs them: inputs
+    area-averaged down, the rays bilinearly (they are affine in the pixel, so that is
+    exactly the rays of the smaller image's pixel centres), the change bilinear back up."""
+    h, w = image.shape[-2:]
+    size = (max(1, round(h * scale)), max(1, round(w * scale)))
+    img = F.interpolate(image[None], size=size, mode="area")
+    disp = F.interpolate(disparity[None], size=size, mode="area")
+    small_rays = F.interpolate(rays[None], size=size, mode="bilinear", align_corners=False)
+    view = reshade(net, img[0], disp[0], camera, small_rays[0])
+    change = F.interpolate(view[None] - img, size=(h, w), mode="bilinear", align_corners=False)
+    return change[0]
+
+
+@torch.no_grad()
 def reshade_like_runtime(
     net: ReshadeNet,
     image: torch.Tensor,
@@ -150,17 +173,23 @@ def reshade_like_runtime(
     key_spacing: float = 0.0,
     scale: float = 1.0,
     transpose: bool = False,
+    rays: torch.Tensor | None = None,
 ) -> torch.Tensor:
     """The view at `camera` as the runtime's per-view cost options make it: the network at
     `scale` (`render --reshade-scale`) and, with `key_spacing`, the residual blended halfway
     between two key views that far apart along x (`render --key-views` at its worst: where
     a linear blend strays furthest from a residual that is not linear in the camera). The
-    residual head only: the lobe heads' closed form has neither option."""
+    lobe heads (which need `rays`) have the scale only: their closed form has no key views."""
     if not net.cfg.takes_camera:
-        raise ValueError(
-            f"the {net.cfg.head} head has no key views or reshade scale (its views are a "
-            "closed form)"
-        )
+        if key_spacing > 0 or transpose:
+            raise ValueError(
+                f"the {net.cfg.head} head has no key views or transposed runs (its views are "
+                "a closed form)"
+            )
+        if rays is None:
+            raise ValueError(f"the {net.cfg.head} head needs each pixel's ray (rays)")
+        change = lobe_change_at(net, image, disparity, rays, camera, scale)
+        return (image + change).clamp(0.0, 1.0)
     if key_spacing > 0:
         step = torch.tensor([key_spacing / 2, 0.0, 0.0], dtype=camera.dtype)
         keys = [
@@ -250,7 +279,14 @@ def evaluate_folder(
         s = target_sample(ex, target)
         if key_spacing > 0 or scale != 1.0 or transpose:
             ours = reshade_like_runtime(
-                net, s["image"], s["disparity"], s["camera"], key_spacing, scale, transpose
+                net,
+                s["image"],
+                s["disparity"],
+                s["camera"],
+                key_spacing,
+                scale,
+                transpose,
+                s["rays"],
             )
         else:
             ours = reshade(net, s["image"], s["disparity"], s["camera"], s["rays"])
@@ -394,7 +430,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         type=float,
         default=1.0,
         help="run the network at this fraction of each image's size and upsample its "
-        "residual, as `render --reshade-scale` does (default 1)",
+        "residual (a lobe head: its network and closed form, and upsample the change), as "
+        "`render --reshade-scale` does (default 1)",
     )
     p.add_argument(
         "--transpose",

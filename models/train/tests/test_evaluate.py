@@ -209,6 +209,31 @@ def test_key_spacing_blends_two_key_views_as_the_runtime_does():
         reshade_like_runtime(lobes, image, disparity, camera, 0.1)
 
 
+def test_a_lobe_head_runs_at_a_reduced_working_size_as_the_runtime_does():
+    from dataclasses import replace
+
+    from reshader_train.data import pixel_rays
+    from reshader_train.evaluate import reshade, reshade_like_runtime
+
+    torch.manual_seed(5)
+    image, disparity = 0.3 + 0.3 * torch.rand(3, 32, 48), 0.1 + 0.1 * torch.rand(1, 32, 48)
+    rays = torch.from_numpy(pixel_rays((40.0, 40.0, 23.5, 15.5), 0, 0, 32, 48)).permute(2, 0, 1)
+    lobes = ReshadeNet(replace(net_config("4,8,8,16,16,16"), head="lobes")).eval()
+    torch.nn.init.normal_(lobes.decoder.out.weight, std=0.3)
+    camera = torch.tensor([0.2, 0.05, 0.0])
+    direct = reshade(lobes, image, disparity, camera, rays)
+    full = reshade_like_runtime(lobes, image, disparity, camera, scale=1.0, rays=rays)
+    assert torch.allclose(full, direct, atol=1e-5) and (direct - image).abs().max() > 0.01
+    # At half size the view still changes, by about as much, and the photo's camera gives
+    # the photo: the change is zero there at any size.
+    half = reshade_like_runtime(lobes, image, disparity, camera, scale=0.5, rays=rays)
+    assert half.shape == image.shape and (half - image).abs().max() > 0.01
+    still = reshade_like_runtime(lobes, image, disparity, torch.zeros(3), scale=0.5, rays=rays)
+    assert torch.equal(still, image.clamp(0.0, 1.0))
+    with pytest.raises(ValueError, match="rays"):
+        reshade_like_runtime(lobes, image, disparity, camera, scale=0.5)
+
+
 def test_transpose_runs_the_network_turned_about_the_diagonal():
     from reshader_train.evaluate import reshade, reshade_like_runtime
 

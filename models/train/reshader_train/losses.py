@@ -258,6 +258,20 @@ def _masked_mean(x: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
     return (x * mask).sum() / mask.sum().clamp(min=1)
 
 
+def _log_amplitude_distance(
+    mine: torch.Tensor, told: torch.Tensor, lo: float, hi: float
+) -> torch.Tensor:
+    """Per pixel and colour, the squared log ratio of two amplitudes over the span lo..hi.
+    Where the teacher has no lobe (below lo) only a brighter one is pulled down, so that a
+    faint one keeps its gradient where the teacher has one. Squared: L1's pull is the same
+    for a lobe a hair too bright where the teacher has none as for one a thousand times too
+    faint where it has one, and with most pixels unlit a network sits at the threshold
+    everywhere."""
+    gap = torch.log(mine.clamp(min=1e-30, max=hi)) - torch.log(told.clamp(min=lo, max=hi))
+    gap = torch.where(told > lo, gap, gap.clamp(min=0.0))
+    return (gap / math.log(hi / lo)).square()
+
+
 def light_share(lobe: torch.Tensor, linear: torch.Tensor, w0: torch.Tensor) -> torch.Tensor:
     """u = a G(w0) / L for one lobe (B,7,H,W): the share of the pixel's linear light `linear`
     (B,3,H,W) that the lobe holds at the photo's view w0, mapped through u / (1 + u) to
@@ -318,25 +332,12 @@ def field_loss(
     for j in range(lobes):
         p, t = fields[:, 7 * j : 7 * j + 7], teacher[:, 7 * j : 7 * j + 7]
         weight = t[:, 4:7].abs().mean(1, keepdim=True)
-        if log_amplitude and photo is not None:
+        if log_amplitude:
             weight = weight.clamp(max=1.0)
-            sq = (light_share(p, linear, w0) - light_share(t, linear, w0)).square()
-            if balance:
-                lit = t[:, 4:7] > lo
-                total = total + _masked_mean(sq, lit) + _masked_mean(sq, ~lit)
+            if photo is not None:
+                sq = (light_share(p, linear, w0) - light_share(t, linear, w0)).square()
             else:
-                total = total + sq.mean()
-        elif log_amplitude:
-            weight = weight.clamp(max=1.0)
-            mine = torch.log(p[:, 4:7].clamp(min=1e-30, max=hi))
-            told = torch.log(t[:, 4:7].clamp(min=lo, max=hi))
-            # Where the teacher has no lobe only a brighter one is pulled down, so that a
-            # faint one keeps its gradient where the teacher has one.
-            gap = torch.where(t[:, 4:7] > lo, mine - told, (mine - told).clamp(min=0.0))
-            # Squared: L1's pull is the same for a lobe a hair too bright where the teacher
-            # has none as for one a thousand times too faint where it has one, and with
-            # most pixels unlit a network sits at the threshold everywhere.
-            sq = (gap / math.log(hi / lo)).square()
+                sq = _log_amplitude_distance(p[:, 4:7], t[:, 4:7], lo, hi)
             if balance:
                 lit = t[:, 4:7] > lo
                 total = total + _masked_mean(sq, lit) + _masked_mean(sq, ~lit)

@@ -45,7 +45,9 @@ COMMANDS = [
     (
         "teacher-check",
         "reshader_train.teacher_check",
-        "where and how much a taught lobes-slide network slides, against its teacher's fields",
+        "how a taught lobes or lobes-slide network's fields compare with its teacher's: where "
+        "and how much light it moves (amplitudes, shares of the pixel's light, axes, sharpness; "
+        "or the sliding layer's fraction)",
     ),
     ("evaluate", "reshader_train.evaluate", "PSNR/SSIM of input vs reshaded on held-out data"),
     ("export", "reshader_train.export", "ONNX models (fp32/fp16/int8, single/split) + manifests"),

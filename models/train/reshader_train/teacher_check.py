@@ -1,6 +1,5 @@
-"""`reshader-train teacher-check`: how well a taught lobes-slide network picks out the
-light its teacher's sliding layer picks out, on training examples as they are (no
-augmentation).
+"""`reshader-train teacher-check`: how well a taught lobes or lobes-slide network picks out
+the light its teacher's fields pick out, on examples as they are (no augmentation).
 
 The taught runs of the model card lower the view loss slowly while the teacher's distance
 (`train --teacher`, an L1 on fields that are zero almost everywhere) hardly moves. This
@@ -165,7 +164,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--checkpoint", type=Path, required=True, help="a lobes-slide or lobes checkpoint"
     )
-    p.add_argument("--data", type=Path, required=True, help="the training examples")
+    p.add_argument("--data", type=Path, required=True, help="the examples (training or held out)")
     p.add_argument("--teacher", type=Path, required=True, help="their fitted fields")
     p.add_argument("--count", type=int, default=40, help="examples drawn (default 40)")
     p.add_argument("--seed", type=int, default=0, help="which examples (default 0)")

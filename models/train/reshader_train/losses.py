@@ -315,11 +315,10 @@ def field_loss(
     what a view's squared error asks for there."""
     from .model import (
         AMPLITUDE_SEEN,
-        LINEAR_FLOOR,
-        LINEAR_GAMMA,
         LOG_AMPLITUDE_RANGE,
         SHARPNESS_RANGE,
-        view_directions,
+        linear_light,
+        photo_directions,
     )
 
     span = math.log(SHARPNESS_RANGE[1] / SHARPNESS_RANGE[0])
@@ -327,8 +326,7 @@ def field_loss(
     total = fields.new_zeros(())
     if photo is not None:
         image, rays = photo
-        linear = (image.clamp(min=0.0) ** LINEAR_GAMMA).clamp(min=LINEAR_FLOOR)
-        w0 = view_directions(torch.zeros_like(rays[:, :1]), rays, rays.new_zeros(len(rays), 3))
+        linear, w0 = linear_light(image), photo_directions(rays)
     for j in range(lobes):
         p, t = fields[:, 7 * j : 7 * j + 7], teacher[:, 7 * j : 7 * j + 7]
         weight = t[:, 4:7].abs().mean(1, keepdim=True)

@@ -404,6 +404,18 @@ def view_directions(disparity: torch.Tensor, rays: torch.Tensor, camera: torch.T
     return v / torch.sqrt((v * v).sum(1, keepdim=True) + 1e-12)
 
 
+def photo_directions(rays: torch.Tensor) -> torch.Tensor:
+    """w0 = normalize(-r): each pixel's direction towards the photo's own camera, whatever
+    its depth (view_directions at camera 0)."""
+    return view_directions(torch.zeros_like(rays[:, :1]), rays, rays.new_zeros(len(rays), 3))
+
+
+def linear_light(image: torch.Tensor) -> torch.Tensor:
+    """The photo's linear light through the linear domains' inverse curve, floored at
+    LINEAR_FLOOR (the share of a pixel's light is defined for black pixels too)."""
+    return (image.clamp(min=0.0) ** LINEAR_GAMMA).clamp(min=LINEAR_FLOOR)
+
+
 class LobeField(nn.Module):
     """The decoder's raw channels -> lobes (B, 7K, H, W) in LOBE_LAYOUT order per lobe."""
 
@@ -433,7 +445,9 @@ class LobeField(nn.Module):
         "photo"."""
         if self.from_photo and image is None:
             raise ValueError("lobe amplitudes from the photo need the photo")
-        w0 = view_directions(torch.zeros_like(rays[:, :1]), rays, rays.new_zeros(rays.shape[0], 3))
+        w0 = photo_directions(rays)
+        if self.from_photo:
+            log_light = torch.log(linear_light(image))
         lo, hi = self.log_sharpness[0], self.log_sharpness[1]
         parts = []
         for j in range(self.lobes):
@@ -443,7 +457,7 @@ class LobeField(nn.Module):
             sharp = torch.exp(lo + (hi - lo) * torch.sigmoid(p[:, 3:4] + self.sharpness_bias))
             amp = self.amplitude(p[:, 4:7])
             if self.from_photo:
-                amp = self.photo_amplitude(amp, sharp, (mu * w0).sum(1, keepdim=True), image)
+                amp = self.photo_amplitude(amp, sharp, (mu * w0).sum(1, keepdim=True), log_light)
             parts += [mu, sharp, amp]
         extra = raw[:, 7 * self.lobes :]
         if self.head == "lobes-flow":
@@ -460,12 +474,12 @@ class LobeField(nn.Module):
         return torch.exp(lo + (hi - lo) * torch.sigmoid(raw + self.amplitude_bias))
 
     def photo_amplitude(
-        self, share: torch.Tensor, sharp: torch.Tensor, cos0: torch.Tensor, image: torch.Tensor
+        self, share: torch.Tensor, sharp: torch.Tensor, cos0: torch.Tensor, log_light: torch.Tensor
     ) -> torch.Tensor:
-        """u I / G(w0), in log so that a lobe far from the photo's view cannot overflow;
-        capped at the top of LOG_AMPLITUDE_RANGE as the free amplitudes are."""
-        linear = LINEAR_GAMMA * torch.log(image.clamp(min=LINEAR_FLOOR ** (1 / LINEAR_GAMMA)))
-        log_a = torch.log(share) + linear + sharp * (1.0 - cos0)
+        """u I / G(w0) for the log of the photo's linear light `log_light`, in log so that a
+        lobe far from the photo's view cannot overflow; capped at the top of
+        LOG_AMPLITUDE_RANGE as the free amplitudes are."""
+        log_a = torch.log(share) + log_light + sharp * (1.0 - cos0)
         return torch.exp(log_a.clamp(max=self.amplitude_span[1]))
 
 

@@ -82,10 +82,9 @@ def first_lobe_shares(
     """`light_share` of the first lobe of (1, 7K, H, W) fields, network's and teacher's,
     for the photo `image` (1,3,H,W) and its `rays`, mean of the colours: (H, W) each."""
     from .losses import light_share
-    from .model import LINEAR_FLOOR, LINEAR_GAMMA, view_directions
+    from .model import linear_light, photo_directions
 
-    linear = (image.clamp(min=0.0) ** LINEAR_GAMMA).clamp(min=LINEAR_FLOOR)
-    w0 = view_directions(torch.zeros_like(rays[:, :1]), rays, rays.new_zeros(1, 3))
+    linear, w0 = linear_light(image), photo_directions(rays)
     return tuple(light_share(f[:, :7], linear, w0)[0].mean(0).numpy() for f in (network, teacher))
 
 

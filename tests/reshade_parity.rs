@@ -200,11 +200,8 @@ mod lobes {
             lobes: p["lobes"].as_u64().unwrap() as usize,
             deadzone: p["deadzone"].as_f64().unwrap() as f32,
             slide: p["head"].as_str().unwrap_or("lobes") == "lobes-slide",
-            domain: match p["domain"].as_str().unwrap_or("display") {
-                "display" => LobeDomain::Display,
-                "linear-clamped" => LobeDomain::LinearClamped,
-                other => panic!("fixture domain {other:?}"),
-            },
+            domain: LobeDomain::named(p["domain"].as_str().unwrap_or("display"))
+                .expect("a domain the runtime has"),
         }
     }
 

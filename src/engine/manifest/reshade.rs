@@ -79,6 +79,11 @@ impl LobeDomain {
             LobeDomain::LinearClamped => "linear-clamped",
         }
     }
+
+    /// The domain a manifest calls `name`, if the runtime has it.
+    pub fn named(name: &str) -> Option<Self> {
+        Self::ALL.into_iter().find(|d| d.name() == name)
+    }
 }
 
 /// What the runtime needs from a lobe-head manifest beyond the common fields.
@@ -167,7 +172,7 @@ pub fn lobe_spec(path: &Path, manifest: &Manifest) -> Result<LobeSpec, ManifestE
         None => return err("deadzone", "is missing".into()),
     };
     let domain = match manifest.domain.as_deref() {
-        Some(name) => match LobeDomain::ALL.into_iter().find(|d| d.name() == name) {
+        Some(name) => match LobeDomain::named(name) {
             Some(LobeDomain::LinearClamped) if slide => {
                 return err(
                     "domain",

@@ -155,9 +155,10 @@ pub struct LobeField {
     data: Vec<f32>,
     /// lobes-slide: the sliding layer S = photo · fraction, RGB per pixel; else empty.
     layer: Vec<f32>,
-    /// Domain linear-clamped: the photo the lobes were computed for, RGB per pixel; else
-    /// empty.
+    /// Domain linear-clamped: the photo the lobes were computed for, RGB per pixel, and its
+    /// linear light (photo^2.2, the same for every view); else empty.
     photo: Vec<f32>,
+    linear: Vec<f32>,
     /// Pixels per unit of normalised coordinate, from the rays as PyTorch takes them.
     focal: [f32; 2],
 }
@@ -207,13 +208,17 @@ impl LobeField {
                 l[PER_LOBE] = lobe_value([l[0], l[1], l[2]], l[3], w0);
             }
         }
-        let photo = if spec.domain == LobeDomain::LinearClamped {
+        let photo: Vec<f32> = if spec.domain == LobeDomain::LinearClamped {
             (0..3 * plane)
                 .map(|j| image[(j % 3) * plane + j / 3])
                 .collect()
         } else {
             Vec::new()
         };
+        let linear = photo
+            .iter()
+            .map(|p| p.max(0.0).powf(LINEAR_GAMMA))
+            .collect();
         let mut layer = Vec::new();
         if spec.slide {
             let extra = PER_LOBE * k;
@@ -241,6 +246,7 @@ impl LobeField {
             data,
             layer,
             photo,
+            linear,
             focal,
         })
     }
@@ -303,8 +309,7 @@ impl LobeField {
         }
         let t = self.spec.deadzone;
         std::array::from_fn(|ch| {
-            let photo = self.photo[3 * i + ch];
-            let linear = photo.max(0.0).powf(LINEAR_GAMMA);
+            let (photo, linear) = (self.photo[3 * i + ch], self.linear[3 * i + ch]);
             let clipped = photo >= CLIPPED;
             let (k, dug) = if clipped {
                 (1.0, (s0[ch] - linear).max(0.0))

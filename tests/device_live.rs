@@ -267,6 +267,30 @@ fn live_depth_runs_the_network_and_reuses_fresh_depth() {
     assert_eq!(std::fs::read_dir(&frames).unwrap().count(), 5);
 }
 
+/// With a depth age limit, new depth and views are made on a worker thread while the
+/// loop keeps showing frames: on a real-time recording of 1 s several key frames land.
+#[test]
+fn live_depth_is_refreshed_in_the_background() {
+    let dir = tempfile::tempdir().unwrap();
+    let rec = dir.path().join("cam.rshfrm");
+    record_yuyv(&rec, 64, 48, 30);
+    let board = tiny_board(dir.path());
+    let frames = dir.path().join("frames");
+    let log = live_with_depth(
+        &rec,
+        &board,
+        &frames,
+        &["--realtime", "--depth-max-age-ms", "1"],
+    );
+    let runs: u64 = log
+        .split("depth estimated on ")
+        .nth(1)
+        .and_then(|rest| rest.split(')').next())
+        .and_then(|n| n.parse().ok())
+        .unwrap_or_else(|| panic!("no depth count in {log}"));
+    assert!(runs >= 2, "{log}");
+}
+
 fn fixture_reshade_model() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("models/fixtures/reshade-fixture-fp32.json")
 }
@@ -507,7 +531,7 @@ fn measure_live_fps_with_depth() {
 }
 
 /// Frame rate with reshading on a 640x480 recording through Looking Glass Portrait (48
-/// views) at working size 210x280, depth reused for 1 s: no model, the fixture network,
+/// views) at working size 210x280, 120 frames, depth reused for 1 s: no model, the fixture network,
 /// the shipped model when models/reshade exists, and $MEASURE_RESHADE_MODEL if set.
 /// `cargo test --test main device_live::measure_live_fps_with_reshading -- --ignored --nocapture`.
 #[test]
@@ -515,7 +539,7 @@ fn measure_live_fps_with_depth() {
 fn measure_live_fps_with_reshading() {
     let dir = tempfile::tempdir().unwrap();
     let rec = dir.path().join("cam640.rshfrm");
-    record_mjpeg(&rec, 640, 480, 60, 30);
+    record_mjpeg(&rec, 640, 480, 150, 30);
     let (w, h) = interleave::Board::builtin("looking-glass-portrait")
         .unwrap()
         .panel_size();
@@ -535,7 +559,7 @@ fn measure_live_fps_with_reshading() {
                 .args(["--board", "looking-glass-portrait", "--display"])
                 .arg(format!("fb:{}:{w}x{h}:xrgb8888", fb.display()))
                 .args(["--depth", "network", "--depth-max-age-ms", "1000"])
-                .args(["--work-size", "210x280", "--frames", "4", "--model"])
+                .args(["--work-size", "210x280", "--frames", "120", "--model"])
                 .arg(model)
                 .args(extra)
                 .output()

@@ -55,8 +55,9 @@ pub struct LiveArgs {
     /// Depth for the views: off (flat: every view is the camera frame) or network.
     #[arg(long, value_parser = keyword::<LiveDepthMode>(), default_value = "off")]
     pub depth: LiveDepthMode,
-    /// Reuse a frame's depth for later frames until it is this many milliseconds old
-    /// (0: run the depth network on every frame).
+    /// Start the next key frame (depth, relocation maps, reshading) on the worker once the
+    /// last is this many milliseconds old (0: every frame is a key frame, made before it
+    /// is shown).
     #[arg(long, default_value_t = 500)]
     pub depth_max_age_ms: u64,
     /// Horizontal field of view of the camera in degrees, for relocating the views.
@@ -77,13 +78,18 @@ when a stage is slower than the camera. At -v the achieved fps and per-stage tim
 logged once a second; a summary is printed at the end.
 
 By default (--depth off) all views are the camera frame itself (the panel shows it flat).
-With --depth network the depth network runs on the working frame (its depth reused while
-younger than --depth-max-age-ms) and every view is relocated with it (--relocate).
+With --depth network the depth network runs on a key frame and every view is relocated
+with its depth (--relocate). Each view of a key frame becomes a map of where its pixels
+take their colours from in the frame, with the view's reshading as a change to the frame;
+every camera frame is then shown through the last key frame's maps (milliseconds a frame),
+while the next key frame (depth, relocation, reshading: most of a second) is made on a
+worker thread once the last one is older than --depth-max-age-ms. With 0, or with a
+relocation that cannot give maps (--relocate mesh, --border inpaint), every frame is its
+own key frame, made before it is shown.
 
 Live views keep the camera's shading unless a reshading model is named (--model, or
 $RESHADER_MODEL; needs --depth network): unlike render, live does not fall back to
-models/reshade, because the shipped network takes about 0.1 s per key view on a CPU (8 key
-views by default), most of a second per frame. --key-views and --reshade-scale cut that cost.
+models/reshade. A key frame's reshading is applied to the frames shown until the next.
 
 Examples:
   reshader live --camera /dev/video0 --list-formats

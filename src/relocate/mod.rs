@@ -11,10 +11,12 @@
 //! over what it uncovers.
 
 pub mod ldi;
+pub mod map;
 
 use crate::depth::DepthMap;
 use crate::io::photo::SrgbImage;
 use crate::relocate::ldi::{view_reach, Border, LdiConfig, LdiRelocator};
+use crate::relocate::map::ViewMap;
 use crate::views::{Intrinsics, ViewCamera};
 
 #[derive(Debug, thiserror::Error, PartialEq)]
@@ -30,6 +32,15 @@ pub enum RelocateError {
         depth_h: usize,
         camera_w: u32,
         camera_h: u32,
+    },
+    #[error(
+        "a relocation map made for a {}x{} image was given a {what} of {}x{}",
+        expected.0, expected.1, got.0, got.1
+    )]
+    MapSize {
+        what: &'static str,
+        expected: (u32, u32),
+        got: (u32, u32),
     },
 }
 
@@ -69,6 +80,13 @@ pub trait PreparedRelocation: Sync {
     /// The view seen by `view`, with `colours` (the view's reshaded image, in the
     /// source camera's frame, at the prepared size).
     fn render(&self, colours: &SrgbImage, view: &ViewCamera) -> Result<SrgbImage, RelocateError>;
+
+    /// The view as a lookup into the colours ([`ViewMap`]), where the preparation can
+    /// give one: where every view pixel's colours come from depends on the geometry
+    /// alone. None where rendering also synthesises colours per view.
+    fn view_map(&self, _view: &ViewCamera) -> Option<ViewMap> {
+        None
+    }
 }
 
 /// The reach a preparation needs to serve cameras at `centres`: the largest equivalent

@@ -1,6 +1,7 @@
 //! Unit tests of `relocate`, beside it so that the module file holds the code only.
 
 use super::*;
+use image::RgbImage;
 
 const W: u32 = 48;
 const H: u32 = 32;
@@ -146,4 +147,56 @@ fn mismatched_sizes_are_an_error() {
         .render(&SrgbImage::new(4, 3), &depth, &camera(), &view(0.0))
         .unwrap_err();
     assert!(matches!(err, RelocateError::SizeMismatch { .. }));
+}
+
+/// A square over a wall with a textured face, 8-bit as live frames are.
+fn textured_square() -> (RgbImage, DepthMap) {
+    let (_, depth) = square_scene();
+    (textured().to_rgb8(), depth)
+}
+
+#[test]
+fn ldi_view_maps_render_the_views_the_ldi_renders() {
+    let (frame, depth) = textured_square();
+    let colours = SrgbImage::from_rgb8(&frame);
+    let relocator = LdiRelocator::default();
+    let cameras = [view(-0.3), view(0.0), view(0.25)];
+    let reach = reach_of(cameras.iter().map(|c| c.centre), &camera());
+    let prepared = relocator
+        .prepare(&colours, &depth, &camera(), reach)
+        .unwrap();
+    let mut mapped = RgbImage::new(0, 0);
+    for cam in &cameras {
+        let rendered = prepared.render(&colours, cam).unwrap().to_rgb8();
+        let map = prepared.view_map(cam).expect("the LDI gives maps");
+        map.apply(&frame, None, &mut mapped).unwrap();
+        let worst = rendered
+            .as_raw()
+            .iter()
+            .zip(mapped.as_raw())
+            .map(|(&a, &b)| a.abs_diff(b))
+            .max();
+        assert_eq!(worst, Some(0), "camera {:?}", cam.centre);
+    }
+    // Reshading carried as a change: the same as rendering the reshaded colours.
+    let mut reshaded = colours.clone();
+    reshaded.put(20, 12, [1.0, 1.0, 1.0]);
+    let change = map::ShadingChange::between(&colours, &reshaded).unwrap();
+    let cam = &cameras[2];
+    let rendered = prepared.render(&reshaded, cam).unwrap().to_rgb8();
+    let map = prepared.view_map(cam).unwrap();
+    map.apply(&frame, Some(&change), &mut mapped).unwrap();
+    assert_eq!(rendered.as_raw(), mapped.as_raw());
+}
+
+#[test]
+fn inpainted_borders_give_no_view_map() {
+    let (frame, depth) = textured_square();
+    let colours = SrgbImage::from_rgb8(&frame);
+    let relocator = LdiRelocator::new(LdiConfig {
+        border: Border::Inpaint,
+        ..LdiConfig::default()
+    });
+    let prepared = relocator.prepare(&colours, &depth, &camera(), 0.3).unwrap();
+    assert!(prepared.view_map(&view(0.3)).is_none());
 }

@@ -30,10 +30,11 @@ use crate::io::photo::SrgbImage;
 use crate::io::record::Timings;
 use crate::pipeline::progress::Progress;
 use crate::pipeline::{render_views, BoardRig, Fitted};
-use crate::relocate::{RelocateError, Relocator};
+use crate::relocate::map::{ShadingChange, ViewMap};
+use crate::relocate::{reach_of, RelocateError, Relocator};
 use crate::reshade::net::NetError;
 use crate::reshade::{ReshadeError, Reshader, TrainingFrame};
-use crate::views::{Intrinsics, ViewError};
+use crate::views::{Intrinsics, ViewCamera, ViewError};
 
 #[derive(Debug, thiserror::Error)]
 pub enum LiveError {
@@ -189,23 +190,36 @@ pub fn run_pipeline(
         live: d,
         cone: f64::from(board.view_cone_deg()),
         latest: None,
+        views: None,
+        key_at: Instant::now(),
     });
     let mut panel = RgbImage::new(0, 0);
-    let result = loop {
-        if stop.load(Ordering::SeqCst) || opts.max_frames.is_some_and(|m| run.total.frames >= m) {
-            break Ok(());
+    let keys = KeySlot::default();
+    let result = std::thread::scope(|scope| {
+        if let Some(live) = opts.depth.as_ref().filter(|d| !d.max_age.is_zero()) {
+            let (keys, views) = (&keys, weaver.views());
+            let cone = f64::from(board.view_cone_deg());
+            scope.spawn(move || keys.serve(live, cone, views));
         }
-        let Some(next) = mailbox.take(stop) else {
-            break Ok(());
+        let result = loop {
+            if stop.load(Ordering::SeqCst) || opts.max_frames.is_some_and(|m| run.total.frames >= m)
+            {
+                break Ok(());
+            }
+            let Some(next) = mailbox.take(stop) else {
+                break Ok(());
+            };
+            let frame = match next {
+                Ok(frame) => frame,
+                Err(e) => break Err(e),
+            };
+            if let Err(e) = run.process(&frame, &weaver, &keys, &mut panel, sink.as_mut()) {
+                break Err(e);
+            }
         };
-        let frame = match next {
-            Ok(frame) => frame,
-            Err(e) => break Err(e),
-        };
-        if let Err(e) = run.process(&frame, &weaver, &mut panel, sink.as_mut()) {
-            break Err(e);
-        }
-    };
+        keys.close();
+        result
+    });
     stop.store(true, Ordering::SeqCst);
     let captured = capture.join().unwrap_or_default();
     run.total.dropped = captured.dropped + mailbox.overwritten();
@@ -224,11 +238,25 @@ struct Run<'a> {
     window_start: Instant,
 }
 
-/// The depth stage's settings and the last depth map with its age.
+/// The depth stage's settings, the last depth map with its age, and the views it gives.
 struct DepthState<'a> {
     live: &'a LiveDepth,
     cone: f64,
     latest: Option<(DepthMap, Instant)>,
+    /// The latest depth map's views as lookups into the frame, with their reshading;
+    /// None where the relocator gives no maps, and every frame is rendered in full.
+    views: Option<Arc<MappedViews>>,
+    /// When the frame those views were made from was taken up.
+    key_at: Instant,
+}
+
+/// The views of one depth map: where each view pixel takes its colours from in the
+/// frame, and each view's reshading as a change to the frame, both made on the frame the
+/// depth was estimated on and applied to every frame until the next estimate.
+struct MappedViews {
+    maps: Vec<ViewMap>,
+    /// One per view, or none without reshading.
+    changes: Vec<ShadingChange>,
 }
 
 impl DepthState<'_> {
@@ -244,6 +272,216 @@ impl DepthState<'_> {
             self.latest = Some((map, Instant::now()));
         }
         Ok(stale)
+    }
+
+    /// The frame fitted to its depth, the views' cameras and the reshading cameras.
+    fn scene(&self, work: &RgbImage, count: usize) -> Result<LiveScene, LiveError> {
+        let (depth, _) = self
+            .latest
+            .as_ref()
+            .expect("depth refreshed before the views");
+        let source = Intrinsics::from_hfov(work.width(), work.height(), self.live.hfov_deg);
+        let fitted = Fitted {
+            image: SrgbImage::from_rgb8(work),
+            depth: depth.clone(),
+            source,
+            reference: source.cover(work.width(), work.height()),
+        };
+        let rigs = BoardRig::for_views(
+            (count, self.cone),
+            (depth, &fitted.reference),
+            (None, None),
+            None,
+        )?;
+        Ok(LiveScene {
+            cameras: rigs.rig.cameras(&fitted.reference),
+            shading: rigs.shading.centres(),
+            frame: TrainingFrame::for_focus(rigs.rig.focus),
+            fitted,
+        })
+    }
+
+    /// The views of the latest depth map as maps, or None where the relocator cannot
+    /// give them.
+    fn mapped_views(
+        &self,
+        work: &RgbImage,
+        count: usize,
+    ) -> Result<Option<MappedViews>, LiveError> {
+        let scene = self.scene(work, count)?;
+        let fitted = &scene.fitted;
+        let reach = reach_of(scene.cameras.iter().map(|c| c.centre), &fitted.source);
+        let prepared =
+            self.live
+                .relocator
+                .prepare(&fitted.image, &fitted.depth, &fitted.source, reach)?;
+        let maps = crate::parallel::map(scene.cameras.len(), crate::parallel::cores(), |i| {
+            Ok::<_, LiveError>(prepared.view_map(&scene.cameras[i]))
+        })?;
+        let Some(maps) = maps.into_iter().collect::<Option<Vec<_>>>() else {
+            return Ok(None);
+        };
+        let changes = match &self.live.reshader {
+            Some(r) => {
+                let depth = scene.frame.depth(&fitted.depth);
+                let reshading = r.prepare(&fitted.image, &depth, &fitted.source)?;
+                let centres: Vec<[f64; 3]> = scene
+                    .shading
+                    .iter()
+                    .map(|&c| scene.frame.camera(c))
+                    .collect();
+                reshading
+                    .reshade_each(&centres)
+                    .map(|view| Ok(ShadingChange::between(&fitted.image, &view?)?))
+                    .collect::<Result<_, LiveError>>()?
+            }
+            None => Vec::new(),
+        };
+        let bytes: usize = maps.iter().map(ViewMap::bytes).sum::<usize>()
+            + changes.iter().map(ShadingChange::bytes).sum::<usize>();
+        log::debug!(
+            "live: {} views mapped, {}",
+            maps.len(),
+            crate::io::limits::Bytes(bytes as u64)
+        );
+        Ok(Some(MappedViews { maps, changes }))
+    }
+}
+
+impl DepthState<'_> {
+    /// Takes up the views of a key frame the worker finished, and hands it `work` as the
+    /// next key frame when the current one is older than `--depth-max-age-ms` and it is
+    /// idle; says whether new views were taken up.
+    fn take_key(&mut self, keys: &KeySlot, work: &RgbImage) -> Result<bool, LiveError> {
+        let finished = keys.take_finished()?;
+        if let Some((views, at)) = finished.clone() {
+            self.views = Some(views);
+            self.key_at = at;
+        }
+        if self.key_at.elapsed() > self.live.max_age {
+            keys.offer(work);
+        }
+        Ok(finished.is_some())
+    }
+}
+
+/// Key frames for the worker thread: depth and the views' maps for a new frame are
+/// made there, on the cores the loop leaves idle, while the loop keeps showing every
+/// camera frame through the last key frame's maps. The depth network and the LDI take
+/// most of a second for a frame; applying maps takes milliseconds.
+#[derive(Default)]
+struct KeySlot {
+    state: Mutex<KeyState>,
+    wake: Condvar,
+}
+
+#[derive(Default)]
+struct KeyState {
+    request: Option<(RgbImage, Instant)>,
+    busy: bool,
+    finished: Option<Result<(Arc<MappedViews>, Instant), LiveError>>,
+    closed: bool,
+}
+
+impl KeySlot {
+    /// Hands `work` to the worker unless it is busy or has a result waiting.
+    fn offer(&self, work: &RgbImage) {
+        let mut state = self.state.lock().expect("key slot poisoned");
+        if !state.busy && state.request.is_none() && state.finished.is_none() {
+            state.request = Some((work.clone(), Instant::now()));
+            self.wake.notify_all();
+        }
+    }
+
+    fn take_finished(&self) -> Result<Option<(Arc<MappedViews>, Instant)>, LiveError> {
+        let finished = self
+            .state
+            .lock()
+            .expect("key slot poisoned")
+            .finished
+            .take();
+        finished.transpose()
+    }
+
+    fn close(&self) {
+        self.state.lock().expect("key slot poisoned").closed = true;
+        self.wake.notify_all();
+    }
+
+    /// The worker: makes depth and views for each key frame offered until closed.
+    fn serve(&self, live: &LiveDepth, cone: f64, views: usize) {
+        while let Some((work, at)) = self.next_request() {
+            let started = Instant::now();
+            let mut state = DepthState {
+                live,
+                cone,
+                latest: None,
+                views: None,
+                key_at: at,
+            };
+            let result = state.refresh(&work).and_then(|_| {
+                state
+                    .mapped_views(&work, views)?
+                    .map(|v| (Arc::new(v), at))
+                    .ok_or_else(|| LiveError::Options("the relocator gave no view maps".into()))
+            });
+            log::debug!(
+                "live: key frame ready in {:.0} ms",
+                started.elapsed().as_secs_f64() * 1e3
+            );
+            let mut state = self.state.lock().expect("key slot poisoned");
+            state.busy = false;
+            state.finished = Some(result);
+        }
+    }
+
+    fn next_request(&self) -> Option<(RgbImage, Instant)> {
+        let mut state = self.state.lock().expect("key slot poisoned");
+        loop {
+            if state.closed {
+                return None;
+            }
+            if let Some(request) = state.request.take() {
+                state.busy = true;
+                return Some(request);
+            }
+            state = self.wake.wait(state).expect("key slot poisoned");
+        }
+    }
+}
+
+/// What the views of a frame are rendered from.
+struct LiveScene {
+    fitted: Fitted,
+    cameras: Vec<ViewCamera>,
+    shading: Vec<[f64; 3]>,
+    frame: TrainingFrame,
+}
+
+impl MappedViews {
+    /// Every view of `work`, into `views` (reused between frames), a band of views per
+    /// core.
+    fn apply(&self, work: &RgbImage, views: &mut Vec<RgbImage>) -> Result<(), LiveError> {
+        views.resize_with(self.maps.len(), || RgbImage::new(0, 0));
+        let band = self.maps.len().div_ceil(crate::parallel::cores()).max(1);
+        std::thread::scope(|scope| {
+            let jobs: Vec<_> = views
+                .chunks_mut(band)
+                .enumerate()
+                .map(|(b, chunk)| {
+                    scope.spawn(move || {
+                        for (j, view) in chunk.iter_mut().enumerate() {
+                            let i = b * band + j;
+                            self.maps[i].apply(work, self.changes.get(i), view)?;
+                        }
+                        Ok::<_, RelocateError>(())
+                    })
+                })
+                .collect();
+            jobs.into_iter()
+                .try_for_each(|job| job.join().expect("a view band panicked"))
+        })?;
+        Ok(())
     }
 }
 
@@ -268,6 +506,7 @@ impl Run<'_> {
         &mut self,
         frame: &Frame,
         weaver: &Weaver,
+        keys: &KeySlot,
         panel: &mut RgbImage,
         sink: &mut dyn FrameSink,
     ) -> Result<(), LiveError> {
@@ -279,12 +518,27 @@ impl Run<'_> {
         times[1] = t.elapsed();
         let mut estimated = false;
         match self.depth.as_mut() {
+            Some(state) if state.views.is_some() && !state.live.max_age.is_zero() => {
+                estimated = state.take_key(keys, &work)?;
+                let t = Instant::now();
+                if let Some(mapped) = &state.views {
+                    mapped.apply(&work, &mut self.views)?;
+                }
+                times[3] = t.elapsed();
+            }
             Some(state) => {
                 let t = Instant::now();
                 estimated = state.refresh(&work)?;
                 times[2] = t.elapsed();
                 let t = Instant::now();
-                self.views = relocated_views(&work, state, weaver.views())?;
+                if estimated {
+                    state.views = state.mapped_views(&work, weaver.views())?.map(Arc::new);
+                    state.key_at = Instant::now();
+                }
+                match &state.views {
+                    Some(mapped) => mapped.apply(&work, &mut self.views)?,
+                    None => self.views = relocated_views(&work, state, weaver.views())?,
+                }
                 times[3] = t.elapsed();
             }
             None => {
@@ -352,28 +606,11 @@ fn relocated_views(
     state: &DepthState,
     count: usize,
 ) -> Result<Vec<RgbImage>, LiveError> {
-    let (depth, _) = state
-        .latest
-        .as_ref()
-        .expect("depth refreshed before the views");
-    let source = Intrinsics::from_hfov(work.width(), work.height(), state.live.hfov_deg);
-    let fitted = Fitted {
-        image: SrgbImage::from_rgb8(work),
-        depth: depth.clone(),
-        source,
-        reference: source.cover(work.width(), work.height()),
-    };
-    let rigs = BoardRig::for_views(
-        (count, state.cone),
-        (depth, &fitted.reference),
-        (None, None),
-        None,
-    )?;
-    let cameras = rigs.rig.cameras(&fitted.reference);
+    let scene = state.scene(work, count)?;
     Ok(render_views(
-        &fitted,
-        (&cameras, &rigs.shading.centres()),
-        TrainingFrame::for_focus(rigs.rig.focus),
+        &scene.fitted,
+        (&scene.cameras, &scene.shading),
+        scene.frame,
         state.live.reshader.as_deref().map(|r| r as &dyn Reshader),
         &*state.live.relocator,
         &Progress::hidden(),

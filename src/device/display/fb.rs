@@ -226,6 +226,9 @@ pub struct FramebufferSink {
     map: Mapping,
     /// One packed row, reused between frames.
     row: Vec<u8>,
+    /// Each channel's 256 packed values (alpha in red's), built once: packing a panel
+    /// frame is then three lookups and an OR per pixel.
+    tables: Box<[[u32; 256]; 3]>,
     size_warned: bool,
     _file: File,
 }
@@ -274,6 +277,7 @@ impl FramebufferSink {
         Ok(Self {
             path: path.into(),
             row: vec![0; geometry.width as usize * geometry.bytes_per_pixel()],
+            tables: channel_tables(&geometry),
             geometry,
             map,
             size_warned: false,
@@ -286,22 +290,39 @@ impl FramebufferSink {
     }
 
     fn pack_row(&mut self, frame: &RgbImage, y: u32) {
-        let g = &self.geometry;
-        let bpp = g.bytes_per_pixel();
-        let black = g.pack([0, 0, 0]).to_le_bytes();
-        let inside = y < frame.height();
-        for (x, out) in self.row.chunks_exact_mut(bpp).enumerate() {
-            let x = x as u32;
-            let value = if inside && x < frame.width() {
-                g.pack(frame.get_pixel(x, y).0).to_le_bytes()
-            } else {
-                black
-            };
-            // Pixels are little-endian in framebuffer memory on the platforms served
-            // (x86, ARM), so a 24-bit pixel is the value's low three bytes.
-            out.copy_from_slice(&value[..bpp]);
+        let bpp = self.geometry.bytes_per_pixel();
+        let [r, g, b] = &*self.tables;
+        let black = (r[0] | g[0] | b[0]).to_le_bytes();
+        let shown = if y < frame.height() {
+            frame.width().min(self.geometry.width) as usize
+        } else {
+            0
+        };
+        let (inside, beyond) = self.row.split_at_mut(shown * bpp);
+        let start = y as usize * frame.width() as usize * 3;
+        let pixels = frame.as_raw().get(start..start + shown * 3).unwrap_or(&[]);
+        // Pixels are little-endian in framebuffer memory on the platforms served (x86,
+        // ARM), so a 24-bit pixel is the value's low three bytes.
+        for (out, px) in inside.chunks_exact_mut(bpp).zip(pixels.chunks_exact(3)) {
+            let value = r[usize::from(px[0])] | g[usize::from(px[1])] | b[usize::from(px[2])];
+            out.copy_from_slice(&value.to_le_bytes()[..bpp]);
+        }
+        for out in beyond.chunks_exact_mut(bpp) {
+            out.copy_from_slice(&black[..bpp]);
         }
     }
+}
+
+/// `geometry.pack` of every value of each channel, the alpha bits in red's table.
+fn channel_tables(geometry: &FbGeometry) -> Box<[[u32; 256]; 3]> {
+    let mut tables = Box::new([[0u32; 256]; 3]);
+    for v in 0..=255u8 {
+        let i = usize::from(v);
+        tables[0][i] = geometry.pack([v, 0, 0]);
+        tables[1][i] = geometry.green.pack(v);
+        tables[2][i] = geometry.blue.pack(v);
+    }
+    tables
 }
 
 impl FrameSink for FramebufferSink {

@@ -21,6 +21,7 @@ mod render;
 
 use crate::depth::DepthMap;
 use crate::io::photo::SrgbImage;
+use crate::relocate::map::{ViewMap, NO_SOURCE};
 use crate::relocate::{check_sizes, PreparedRelocation, RelocateError, Relocator};
 use crate::views::{Intrinsics, ViewCamera};
 
@@ -309,15 +310,51 @@ impl Ldi {
                 camera_h: self.source.height,
             });
         }
-        let k = self.supersampling;
-        let intrinsics = supersampled(&self.framed(&view.intrinsics), k);
-        let centre = view.centre.map(|c| c / self.scale);
-        let frame = render::rasterise(&self.mesh, w * h, centre, &intrinsics, k);
+        let frame = self.rasterise(view);
         let mut rendered = self.resolve(&frame, colours);
         if self.border == Border::Inpaint {
             synthesize_holes(&mut rendered, &frame);
         }
         Ok(rendered)
+    }
+
+    fn rasterise(&self, view: &ViewCamera) -> render::Frame {
+        let k = self.supersampling;
+        let intrinsics = supersampled(&self.framed(&view.intrinsics), k);
+        let centre = view.centre.map(|c| c / self.scale);
+        let front_samples = self.stats.width * self.stats.height;
+        render::rasterise(&self.mesh, front_samples, centre, &intrinsics, k)
+    }
+
+    /// The view as a lookup into the colours: each pixel's subsamples' source pixels.
+    /// None with `--border inpaint` (holes are synthesised per view) or build-time band
+    /// colours (not in the colours rendered).
+    pub fn view_map(&self, view: &ViewCamera) -> Option<ViewMap> {
+        if self.border == Border::Inpaint || self.band_rgb.is_some() {
+            return None;
+        }
+        let frame = self.rasterise(view);
+        let k = frame.factor;
+        let (ow, oh) = (frame.width / k, frame.height / k);
+        let mut sources = Vec::with_capacity(frame.sample.len());
+        for y in 0..oh {
+            for x in 0..ow {
+                for sy in 0..k {
+                    let row = (y * k + sy) * frame.width + x * k;
+                    sources.extend(frame.sample[row..row + k].iter().map(|&s| match s {
+                        render::EMPTY => NO_SOURCE,
+                        s => self.mesh.samples[s as usize].colour_from,
+                    }));
+                }
+            }
+        }
+        let source = (self.stats.width as u32, self.stats.height as u32);
+        Some(ViewMap::new(
+            (ow as u32, oh as u32),
+            source,
+            k * k,
+            &sources,
+        ))
     }
 
     /// The view's intrinsics, magnified about the image centre in crop mode.
@@ -511,5 +548,9 @@ impl Relocator for LdiRelocator {
 impl PreparedRelocation for Ldi {
     fn render(&self, colours: &SrgbImage, view: &ViewCamera) -> Result<SrgbImage, RelocateError> {
         Ldi::render(self, colours, view)
+    }
+
+    fn view_map(&self, view: &ViewCamera) -> Option<ViewMap> {
+        Ldi::view_map(self, view)
     }
 }

@@ -224,6 +224,11 @@ fn optimized(
             "{}: {n} QLinearConv nodes run as float convolutions between their quantisation points",
             model.path.display()
         );
+        let n = int8::fake_quantize_activations(&mut proto).map_err(rewrite_error)?;
+        log::debug!(
+            "{}: {n} QuantizeLinear/DequantizeLinear pairs run as float rounding",
+            model.path.display()
+        );
     }
     let mut graph = onnx.model_for_proto_model(&proto).map_err(load)?;
     let names = input_names(&graph).map_err(load)?;

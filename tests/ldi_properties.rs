@@ -108,6 +108,37 @@ fn no_pixel_of_any_view_is_a_hole() {
 }
 
 #[test]
+fn crop_framing_fitted_to_the_views_is_just_enough() {
+    let config = LdiConfig {
+        border: Border::Crop,
+        ..LdiConfig::default()
+    };
+    let holes = |ldi: &Ldi, scene: &Scene, tx: f64| {
+        let view = render(ldi, scene, tx, 3.5);
+        view.hole_fraction.iter().filter(|&&h| h > 0.0).count()
+    };
+    for seed in 0..6 {
+        let scene = random_scene(seed);
+        let mut ldi = scene.build(&config, 0.25);
+        let any_focus = ldi.stats().crop;
+        let served = [-0.2, -0.1, 0.1, 0.2].map(|tx| view(tx, 3.5));
+        ldi.fit_frame(&served);
+        let fitted = ldi.stats().crop;
+        // The focus plane lies amid the scene's depths: each side needs less.
+        assert!(
+            1.0 < fitted && fitted < any_focus,
+            "seed {seed}: {fitted} against {any_focus}"
+        );
+        for tx in [-0.2, -0.15, 0.0, 0.1, 0.2] {
+            assert_eq!(holes(&ldi, &scene, tx), 0, "seed {seed} tx={tx}");
+        }
+        // Just enough: a view beyond those served sees past the photo's edge.
+        let beyond = holes(&ldi, &scene, -0.4) + holes(&ldi, &scene, 0.4);
+        assert!(beyond > 0, "seed {seed}: a view at 0.4 saw no border");
+    }
+}
+
+#[test]
 fn foreground_colours_never_appear_in_a_disoccluded_band() {
     let mut checked = 0;
     for seed in 100..116 {
@@ -216,7 +247,7 @@ fn the_relocator_prepares_once_and_renders_every_view_from_it() {
     let reach = reach_of(views.iter().map(|v| v.centre), &camera());
     assert!((reach - 0.3).abs() < 1e-12);
     let prepared = relocator
-        .prepare(&scene.colours, &depth, &camera(), reach)
+        .prepare(&scene.colours, &depth, &camera(), &views)
         .unwrap();
     let ldi = scene.build(&LdiConfig::default(), reach);
     for v in &views {

@@ -310,10 +310,12 @@ pub struct RelocateArgs {
     /// Relocation method: the layered depth image, or the first mesh warp (for comparison).
     #[arg(long = "relocate", value_parser = keyword::<RelocateKind>(), default_value = "ldi")]
     pub kind: RelocateKind,
-    /// Beyond the photo's borders (LDI): stretch the border pixels outwards, magnify
-    /// every view slightly so the border never shows, or fill what a view sees beyond
-    /// the border by patch synthesis from the view.
-    #[arg(long, value_parser = keyword::<Border>(), default_value = "extend")]
+    /// Beyond the photo's borders (LDI): magnify every view by one factor, just enough
+    /// that no view sees past the photo's edge (1 where none would: a photo wider than
+    /// the view, a focus plane at the border's depth), stretch the border pixels
+    /// outwards (the input's framing, streaks at the edge of outer views), or fill what
+    /// a view sees beyond the border by patch synthesis from the view.
+    #[arg(long, value_parser = keyword::<Border>(), default_value = "crop")]
     pub border: Border,
 }
 
@@ -440,12 +442,12 @@ mod tests {
             "--relocate",
             "mesh",
             "--border",
-            "crop",
+            "inpaint",
         ])
         .unwrap();
         assert_eq!(cli.reshade.head, Some(Head::Lobes));
         assert_eq!(cli.relocate.kind, RelocateKind::Mesh);
-        assert_eq!(cli.relocate.border, Border::Crop);
+        assert_eq!(cli.relocate.border, Border::Inpaint);
         let err = <Shared as clap::Parser>::try_parse_from(["reshader", "--head", "lobe"])
             .err()
             .unwrap()

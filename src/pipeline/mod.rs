@@ -23,7 +23,7 @@ use crate::io::photo::{Photo, PhotoError, SrgbImage};
 use crate::io::preview::PreviewError;
 use crate::io::record::{FileRecord, Timings};
 use crate::pipeline::progress::Progress;
-use crate::relocate::{self, PreparedRelocation, RelocateError, Relocator};
+use crate::relocate::{PreparedRelocation, RelocateError, Relocator};
 use crate::reshade::{ReshadeError, Reshader, TrainingFrame, TRAINING_FOCUS, TRAINING_REACH};
 use crate::views::{robust_focus, robust_range, Intrinsics, ViewCamera, ViewError, ViewRig};
 use record::{
@@ -514,9 +514,8 @@ fn prepare_relocation<'a>(
     relocator: &'a dyn Relocator,
     t: &mut Timings,
 ) -> Result<Box<dyn PreparedRelocation + 'a>, RelocateError> {
-    let reach = relocate::reach_of(cameras.iter().map(|c| c.centre), &fitted.source);
     t.time("relocate_prepare", || {
-        relocator.prepare(&fitted.image, &fitted.depth, &fitted.source, reach)
+        relocator.prepare(&fitted.image, &fitted.depth, &fitted.source, cameras)
     })
 }
 

@@ -51,15 +51,16 @@ pub trait Relocator: Send + Sync {
     fn description(&self) -> String;
 
     /// The per-photo work, done once: `colours` guide inpainting (each view brings its
-    /// own colours to [`PreparedRelocation::render`]), `reach` is the largest view
-    /// offset to serve (see [`reach_of`]); farther views still render, with less
+    /// own colours to [`PreparedRelocation::render`]), `views` are the cameras to serve
+    /// (the background behind occluders reaches as far as the farthest of them sees,
+    /// [`reach_of`], and crop framing fits them); other views still render, with less
     /// background behind occluders.
     fn prepare<'a>(
         &'a self,
         colours: &SrgbImage,
         depth: &DepthMap,
         source: &Intrinsics,
-        reach: f64,
+        views: &[ViewCamera],
     ) -> Result<Box<dyn PreparedRelocation + 'a>, RelocateError>;
 
     /// One view on its own: prepares for just this view and renders it.
@@ -70,7 +71,7 @@ pub trait Relocator: Send + Sync {
         source: &Intrinsics,
         view: &ViewCamera,
     ) -> Result<SrgbImage, RelocateError> {
-        self.prepare(colours, depth, source, reach_of([view.centre], source))?
+        self.prepare(colours, depth, source, std::slice::from_ref(view))?
             .render(colours, view)
     }
 }
@@ -124,11 +125,24 @@ impl RelocateConfig {
     /// The one constructor of the runtime's relocator (CLI, gallery, benchmark).
     pub fn build(&self) -> Box<dyn Relocator> {
         match self.kind {
-            RelocateKind::Ldi => Box::new(LdiRelocator::new(LdiConfig {
-                border: self.border,
-                ..LdiConfig::default()
-            })),
+            RelocateKind::Ldi => Box::new(LdiRelocator::new(self.ldi_config())),
             RelocateKind::Mesh => Box::new(MeshWarp::default()),
+        }
+    }
+
+    /// The relocator of a live stream, whose framing holds steady across its frames
+    /// ([`LdiRelocator::steady`]).
+    pub fn build_live(&self) -> Box<dyn Relocator> {
+        match self.kind {
+            RelocateKind::Ldi => Box::new(LdiRelocator::steady(self.ldi_config())),
+            RelocateKind::Mesh => Box::new(MeshWarp::default()),
+        }
+    }
+
+    fn ldi_config(&self) -> LdiConfig {
+        LdiConfig {
+            border: self.border,
+            ..LdiConfig::default()
         }
     }
 }
@@ -186,7 +200,7 @@ impl Relocator for MeshWarp {
         colours: &SrgbImage,
         depth: &DepthMap,
         source: &Intrinsics,
-        _reach: f64,
+        _views: &[ViewCamera],
     ) -> Result<Box<dyn PreparedRelocation + 'a>, RelocateError> {
         check_sizes(colours, depth, source)?;
         let unit = crate::relocate::ldi::mesh_scale(depth.data());

@@ -161,9 +161,8 @@ fn ldi_view_maps_render_the_views_the_ldi_renders() {
     let colours = SrgbImage::from_rgb8(&frame);
     let relocator = LdiRelocator::default();
     let cameras = [view(-0.3), view(0.0), view(0.25)];
-    let reach = reach_of(cameras.iter().map(|c| c.centre), &camera());
     let prepared = relocator
-        .prepare(&colours, &depth, &camera(), reach)
+        .prepare(&colours, &depth, &camera(), &cameras)
         .unwrap();
     let mut mapped = RgbImage::new(0, 0);
     for cam in &cameras {
@@ -197,6 +196,37 @@ fn inpainted_borders_give_no_view_map() {
         border: Border::Inpaint,
         ..LdiConfig::default()
     });
-    let prepared = relocator.prepare(&colours, &depth, &camera(), 0.3).unwrap();
+    let prepared = relocator
+        .prepare(&colours, &depth, &camera(), &[view(0.3)])
+        .unwrap();
     assert!(prepared.view_map(&view(0.3)).is_none());
+}
+
+#[test]
+fn a_live_relocator_never_narrows_its_crop_framing() {
+    let config = LdiConfig {
+        border: Border::Crop,
+        ..LdiConfig::default()
+    };
+    let colours = textured();
+    let cameras = [view(-0.3), view(0.3)];
+    let (_, deep) = square_scene();
+    let flat = DepthMap::new(W as usize, H as usize, vec![FOCUS as f32; (W * H) as usize]);
+    let render_flat = |relocator: &LdiRelocator| {
+        relocator
+            .prepare(&colours, &flat, &camera(), &cameras)
+            .unwrap()
+            .render(&colours, &cameras[1])
+            .unwrap()
+    };
+    // A plane at the focus moves nowhere: fitted on its own it needs no crop.
+    let each_photo = LdiRelocator::new(config.clone());
+    each_photo
+        .prepare(&colours, &deep, &camera(), &cameras)
+        .unwrap();
+    assert_eq!(render_flat(&each_photo), colours);
+    // After a deep frame, a live stream keeps that frame's magnification.
+    let live = LdiRelocator::steady(config);
+    live.prepare(&colours, &deep, &camera(), &cameras).unwrap();
+    assert_ne!(render_flat(&live), colours);
 }

@@ -31,7 +31,7 @@ use crate::io::record::Timings;
 use crate::pipeline::progress::Progress;
 use crate::pipeline::{render_views, BoardRig, Fitted};
 use crate::relocate::map::{ShadingChange, ViewMap};
-use crate::relocate::{reach_of, RelocateError, Relocator};
+use crate::relocate::{RelocateError, Relocator};
 use crate::reshade::net::NetError;
 use crate::reshade::{ReshadeError, Reshader, TrainingFrame};
 use crate::views::{Intrinsics, ViewCamera, ViewError};
@@ -310,11 +310,12 @@ impl DepthState<'_> {
     ) -> Result<Option<MappedViews>, LiveError> {
         let scene = self.scene(work, count)?;
         let fitted = &scene.fitted;
-        let reach = reach_of(scene.cameras.iter().map(|c| c.centre), &fitted.source);
-        let prepared =
-            self.live
-                .relocator
-                .prepare(&fitted.image, &fitted.depth, &fitted.source, reach)?;
+        let prepared = self.live.relocator.prepare(
+            &fitted.image,
+            &fitted.depth,
+            &fitted.source,
+            &scene.cameras,
+        )?;
         let maps = crate::parallel::map(scene.cameras.len(), crate::parallel::cores(), |i| {
             Ok::<_, LiveError>(prepared.view_map(&scene.cameras[i]))
         })?;

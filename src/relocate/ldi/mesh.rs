@@ -27,6 +27,18 @@ pub(super) struct Mesh {
     pub vertices: Vec<Vertex>,
     /// Original pixels first (sample i is pixel i), then band samples.
     pub samples: Vec<Sample>,
+    /// The vertices on the photo's outline, each with the side it lies on (a corner
+    /// of the photo is listed once for each of its two sides).
+    pub outline: Vec<(u32, Side)>,
+}
+
+/// A side of the photo's frame.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(super) enum Side {
+    Left,
+    Right,
+    Top,
+    Bottom,
 }
 
 pub(super) struct MeshInput<'a> {
@@ -118,12 +130,27 @@ pub(super) fn build(input: &MeshInput) -> Mesh {
         samples[w * h + k].colour_from = src;
     }
     let mut vertices = Vec::with_capacity(count + w + h);
+    let mut outline = Vec::with_capacity(4 * (w + h + 2));
     for cy in 0..=h {
         for cx in 0..=w {
+            let first = vertices.len() as u32;
             add_corner(input, cx, cy, &mut vertices, &mut samples);
+            let sides = [
+                (cx == 0, Side::Left),
+                (cx == w, Side::Right),
+                (cy == 0, Side::Top),
+                (cy == h, Side::Bottom),
+            ];
+            for (_, side) in sides.into_iter().filter(|&(on, _)| on) {
+                outline.extend((first..vertices.len() as u32).map(|v| (v, side)));
+            }
         }
     }
-    Mesh { vertices, samples }
+    Mesh {
+        vertices,
+        samples,
+        outline,
+    }
 }
 
 /// Groups the samples around corner (cx, cy) into connected sets and gives each set a

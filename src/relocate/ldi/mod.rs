@@ -25,6 +25,7 @@ use crate::relocate::map::{ViewMap, NO_SOURCE};
 use crate::relocate::{check_sizes, PreparedRelocation, RelocateError, Relocator};
 use crate::views::{Intrinsics, ViewCamera};
 
+use mesh::Side;
 use render::Origin;
 
 /// A small deterministic generator for the patch synthesis's random candidates (the band
@@ -47,10 +48,12 @@ impl SplitMix {
 pub enum Border {
     /// The border pixels are stretched outwards far enough that no view sees past them;
     /// the framing of the zero-parallax plane is exactly the input's.
-    #[default]
     Extend,
-    /// Every view is magnified about its centre by the same factor, enough that the
-    /// border never enters the frame; nothing is invented, the framing is slightly tighter.
+    /// Every view is magnified about its centre by the same factor, just enough that
+    /// the border never enters the frame of any view served ([`Ldi::fit_frame`]);
+    /// nothing is invented or stretched, the framing is slightly tighter where the
+    /// photo's edges would otherwise show. The runtime's default.
+    #[default]
     Crop,
     /// The framing is the input's and what a view sees beyond the photo's edge is
     /// filled like any other uncovered region, from the background beside it.
@@ -115,6 +118,8 @@ impl Default for LdiConfig {
             patch_radius: 2,
             random_candidates: 6,
             supersampling: 2,
+            // The builder's own default keeps the input's framing; the runtime
+            // (`RelocateConfig`) crops.
             border: Border::Extend,
             band_colours: BandColours::View,
         }
@@ -136,6 +141,8 @@ pub struct LdiStats {
     /// The offset the band and border margin were sized for, scene units.
     pub reach: f64,
     pub border_margin_px: f64,
+    /// With crop framing, how much every view is magnified about its centre (1 without).
+    pub crop: f64,
 }
 
 /// A built layered depth image of one photo.
@@ -250,6 +257,11 @@ impl Ldi {
                 + mesh.samples.capacity() * std::mem::size_of::<mesh::Sample>(),
             reach,
             border_margin_px: margin,
+            crop: if config.border == Border::Crop {
+                crop_for_margin(margin, source)
+            } else {
+                1.0
+            },
         };
         log::info!(
             "LDI built: {}x{}, {} contours cut ({} dropped), {} vertices, {} in the \
@@ -357,14 +369,63 @@ impl Ldi {
         ))
     }
 
+    /// Tightens crop framing to the views that will be rendered: the smallest
+    /// magnification at which none of them sees past the photo's outline (at most
+    /// [`MAX_CROP`]). The framing [`Ldi::build`] sets serves any view within its reach
+    /// and any focus within the photo's depths, which is more than most sets of views
+    /// need (a focus plane amid the depths halves it).
+    pub fn fit_frame(&mut self, views: &[ViewCamera]) {
+        if self.border != Border::Crop || views.is_empty() {
+            return;
+        }
+        let needed = views
+            .iter()
+            .map(|view| self.crop_for_view(view))
+            .fold(1.0, f64::max);
+        log::info!(
+            "crop framing fitted to {} views: magnification {:.4} (for any focus {:.4})",
+            views.len(),
+            needed,
+            self.stats.crop
+        );
+        self.stats.crop = needed;
+    }
+
+    /// The magnification at which `view` sees no further than the photo's outline.
+    fn crop_for_view(&self, view: &ViewCamera) -> f64 {
+        let centre = view.centre.map(|c| c / self.scale);
+        let k = &view.intrinsics;
+        let (hw, hh) = (f64::from(k.width) / 2.0, f64::from(k.height) / 2.0);
+        let mut s = 1.0f64;
+        for &(v, side) in &self.mesh.outline {
+            let vertex = &self.mesh.vertices[v as usize];
+            let Some([x, y, _]) = render::project_vertex(vertex, centre, k) else {
+                return MAX_CROP;
+            };
+            let (x, y) = (f64::from(x), f64::from(y));
+            // How far inside the frame the outline lies on its side, and that side's
+            // distance from the centre the magnification is about.
+            let (inside, half) = match side {
+                Side::Left => (x, hw),
+                Side::Right => (2.0 * hw - x, hw),
+                Side::Top => (y, hh),
+                Side::Bottom => (2.0 * hh - y, hh),
+            };
+            if inside >= half {
+                return MAX_CROP;
+            }
+            s = s.max(half / (half - inside));
+        }
+        s.min(MAX_CROP)
+    }
+
     /// The view's intrinsics, magnified about the image centre in crop mode.
     fn framed(&self, k: &Intrinsics) -> Intrinsics {
         if self.border != Border::Crop {
             return *k;
         }
-        let margin = self.stats.border_margin_px * k.fx / self.source.fx;
         let (w, h) = (f64::from(k.width), f64::from(k.height));
-        let s = ((w + 2.0 * margin) / w).max((h + 2.0 * margin) / h);
+        let s = self.stats.crop;
         Intrinsics {
             fx: k.fx * s,
             fy: k.fy * s,
@@ -479,6 +540,23 @@ pub(crate) fn mesh_scale(depth: &[f32]) -> f64 {
         .exp2()
 }
 
+/// The most crop framing magnifies a view: past it the view would be mostly outside
+/// the photo, and showing the stretched border is the lesser harm.
+const MAX_CROP: f64 = 2.0;
+
+/// The magnification that keeps a border `margin` source pixels wide out of the frame.
+fn crop_for_margin(margin: f64, source: &Intrinsics) -> f64 {
+    let need = |extent: u32| {
+        let half = f64::from(extent) / 2.0;
+        if margin < half {
+            half / (half - margin)
+        } else {
+            MAX_CROP
+        }
+    };
+    need(source.width).max(need(source.height)).min(MAX_CROP)
+}
+
 fn supersampled(k: &Intrinsics, factor: usize) -> Intrinsics {
     let s = factor as f64;
     Intrinsics {
@@ -495,11 +573,28 @@ fn supersampled(k: &Intrinsics, factor: usize) -> Intrinsics {
 /// per photo, and rendered per view.
 pub struct LdiRelocator {
     pub config: LdiConfig,
+    /// For a stream of frames of one scene: the largest crop fitted so far, below which
+    /// the next preparation does not go, so that the framing does not breathe as the
+    /// depth of each frame changes (see [`LdiRelocator::steady`]).
+    held_crop: Option<std::sync::Mutex<f64>>,
 }
 
 impl LdiRelocator {
     pub fn new(config: LdiConfig) -> Self {
-        Self { config }
+        Self {
+            config,
+            held_crop: None,
+        }
+    }
+
+    /// A relocator for the frames of a live stream: crop framing only ever grows from
+    /// one preparation to the next. Not for unrelated photos, each of which should get
+    /// its own framing.
+    pub fn steady(config: LdiConfig) -> Self {
+        Self {
+            config,
+            held_crop: Some(std::sync::Mutex::new(1.0)),
+        }
     }
 }
 
@@ -533,15 +628,19 @@ impl Relocator for LdiRelocator {
         colours: &SrgbImage,
         depth: &DepthMap,
         source: &Intrinsics,
-        reach: f64,
+        views: &[ViewCamera],
     ) -> Result<Box<dyn PreparedRelocation + 'a>, RelocateError> {
-        Ok(Box::new(Ldi::build(
-            colours,
-            depth,
-            source,
-            &self.config,
-            reach,
-        )?))
+        let reach = crate::relocate::reach_of(views.iter().map(|v| v.centre), source);
+        let mut ldi = Ldi::build(colours, depth, source, &self.config, reach)?;
+        ldi.fit_frame(views);
+        if let Some(held) = &self.held_crop {
+            let mut held = held
+                .lock()
+                .unwrap_or_else(std::sync::PoisonError::into_inner);
+            ldi.stats.crop = ldi.stats.crop.max(*held);
+            *held = ldi.stats.crop;
+        }
+        Ok(Box::new(ldi))
     }
 }
 

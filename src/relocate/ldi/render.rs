@@ -3,7 +3,7 @@
 //! covers from the farthest surface next to it, then resolve colours and average the
 //! subsamples, which anti-aliases the silhouettes.
 
-use super::mesh::Mesh;
+use super::mesh::{Mesh, Vertex};
 use crate::relocate::raster_triangle;
 use crate::views::Intrinsics;
 
@@ -86,26 +86,26 @@ fn outside(q: [[f32; 3]; 4], w: f32, h: f32) -> bool {
 /// or one whose position is not a finite number (a camera absurdly far away), which no
 /// triangle then uses. `centre` is in the mesh's units (see [`super::Ldi`]'s scale).
 fn project(mesh: &Mesh, centre: [f64; 3], k: &Intrinsics) -> Vec<[f32; 3]> {
-    let [tx, ty, tz] = centre.map(|c| c as f32);
-    let (fx, fy, cx, cy) = (k.fx as f32, k.fy as f32, k.cx as f32, k.cy as f32);
     mesh.vertices
         .iter()
-        .map(|v| {
-            let z = 1.0 / v.disparity;
-            let (qx, qy, qz) = (v.ray[0] * z - tx, v.ray[1] * z - ty, z - tz);
-            // NaN comes from an infinite camera offset.
-            if qz.is_nan() || qz <= 1e-6 {
-                return [0.0, 0.0, 0.0];
-            }
-            let inv = 1.0 / qz;
-            let p = [fx * qx * inv + cx, fy * qy * inv + cy, inv];
-            if p.iter().all(|c| c.is_finite()) && inv > 0.0 {
-                p
-            } else {
-                [0.0, 0.0, 0.0]
-            }
-        })
+        .map(|v| project_vertex(v, centre, k).unwrap_or([0.0; 3]))
         .collect()
+}
+
+/// A vertex's pixel position and 1/z in the camera at `centre` with intrinsics `k`;
+/// None behind the camera or where the numbers overflow.
+pub(super) fn project_vertex(v: &Vertex, centre: [f64; 3], k: &Intrinsics) -> Option<[f32; 3]> {
+    let [tx, ty, tz] = centre.map(|c| c as f32);
+    let (fx, fy, cx, cy) = (k.fx as f32, k.fy as f32, k.cx as f32, k.cy as f32);
+    let z = 1.0 / v.disparity;
+    let (qx, qy, qz) = (v.ray[0] * z - tx, v.ray[1] * z - ty, z - tz);
+    // NaN comes from an infinite camera offset.
+    if qz.is_nan() || qz <= 1e-6 {
+        return None;
+    }
+    let inv = 1.0 / qz;
+    let p = [fx * qx * inv + cx, fy * qy * inv + cy, inv];
+    (p.iter().all(|c| c.is_finite()) && inv > 0.0).then_some(p)
 }
 
 /// Writes `id` into the pixel centres inside the triangle where it is nearer than what

@@ -194,7 +194,7 @@ fn live_depth(args: &LiveConfig) -> Result<Option<LiveDepth>, LiveError> {
         net: estimator.net()?,
         opts: *estimator.options(),
         max_age: args.depth_max_age,
-        relocator: args.relocate.build(),
+        relocator: args.relocate.build_live(),
         hfov_deg: args.fov,
     }))
 }

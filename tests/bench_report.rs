@@ -48,6 +48,7 @@ fn report(cases: Vec<Case>) -> Report {
         threads: 2,
         runs: 3,
         load_average: Some([1.5, 1.0, 0.5]),
+        cpu: Some("Fixture CPU".into()),
         reshade_model: "reshade-fixture-int8 — FIXTURE STAND-IN".into(),
         depth_model: "tiefenrausch-int8".into(),
         cases,
@@ -122,6 +123,10 @@ fn json_round_trips_and_rejects_other_formats() {
     let r = report(vec![case("generic-8view", 1.0, true)]);
     let back = Report::from_json("x.json", &r.to_json()).unwrap();
     assert_eq!(back, r);
+    assert!(r.to_markdown().contains("2 threads on Fixture CPU"));
+    // Reports saved before the processor was recorded still load.
+    let old = r.to_json().replace("\"cpu\": \"Fixture CPU\",", "");
+    assert_eq!(Report::from_json("old.json", &old).unwrap().cpu, None);
     let other = r.to_json().replace(report::FORMAT, "something-else/9");
     let err = Report::from_json("old.json", &other)
         .unwrap_err()
@@ -151,6 +156,14 @@ fn compare_reports_the_change_per_stage() {
         text.contains(
             "| (setup) | depth model differs | tiefenrausch-int8 | tiefenrausch-fp32 | |"
         ),
+        "{text}"
+    );
+    // Times from another processor, or one a report did not record, do not compare.
+    let mut older = before.clone();
+    older.cpu = None;
+    let text = now.compare(&older);
+    assert!(
+        text.contains("| (setup) | processor differs | an unrecorded processor | Fixture CPU | |"),
         "{text}"
     );
     assert!(

@@ -15,6 +15,7 @@
 
 use std::collections::{HashMap, HashSet};
 
+use super::proto::{floats, initializer_index, words};
 use tract_onnx::pb::{self, tensor_proto::DataType};
 
 const FLOAT: i32 = DataType::Float as i32;
@@ -342,16 +343,6 @@ fn dequantize_bias(
     })
 }
 
-/// Each initializer's position in the graph, by name.
-fn initializer_index(graph: &pb::GraphProto) -> HashMap<String, usize> {
-    graph
-        .initializer
-        .iter()
-        .enumerate()
-        .map(|(i, t)| (t.name.clone(), i))
-        .collect()
-}
-
 /// Removes the initializers among `consumed` that no node or graph output reads.
 fn drop_unused(graph: &mut pb::GraphProto, consumed: HashSet<String>) {
     let still_used: HashSet<&String> = graph
@@ -447,81 +438,10 @@ fn int32s(t: &pb::TensorProto) -> Result<Vec<i32>, String> {
     words(t, INT32, "bias", "int32", &t.int32_data, i32::from_le_bytes)
 }
 
-fn floats(t: &pb::TensorProto) -> Result<Vec<f32>, String> {
-    words(
-        t,
-        FLOAT,
-        "scale",
-        "float",
-        &t.float_data,
-        f32::from_le_bytes,
-    )
-}
-
-/// The values of a tensor of 4-byte elements of type `data_type`, from its raw bytes
-/// (little-endian) or its typed field `typed`; `role` and `kind` name it in the error.
-fn words<T: Clone>(
-    t: &pb::TensorProto,
-    data_type: i32,
-    role: &str,
-    kind: &str,
-    typed: &[T],
-    from_le: fn([u8; 4]) -> T,
-) -> Result<Vec<T>, String> {
-    if t.data_type != data_type {
-        return Err(format!(
-            "{role} {:?} has element type {}; expected {kind}",
-            t.name, t.data_type
-        ));
-    }
-    if t.raw_data.is_empty() {
-        return Ok(typed.to_vec());
-    }
-    Ok(t.raw_data
-        .chunks_exact(4)
-        .map(|b| from_le([b[0], b[1], b[2], b[3]]))
-        .collect())
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    fn tensor(name: &str, data_type: i32, dims: &[i64], raw: Vec<u8>) -> pb::TensorProto {
-        pb::TensorProto {
-            name: name.into(),
-            data_type,
-            dims: dims.to_vec(),
-            raw_data: raw,
-            ..Default::default()
-        }
-    }
-
-    fn node(op: &str, inputs: &[&str], output: &str) -> pb::NodeProto {
-        pb::NodeProto {
-            op_type: op.into(),
-            name: format!("{op}_{output}"),
-            input: inputs.iter().map(|s| s.to_string()).collect(),
-            output: vec![output.into()],
-            attribute: vec![pb::AttributeProto {
-                name: "axis".into(),
-                i: 0,
-                ..Default::default()
-            }],
-            ..Default::default()
-        }
-    }
-
-    fn model(initializer: Vec<pb::TensorProto>, node: Vec<pb::NodeProto>) -> pb::ModelProto {
-        pb::ModelProto {
-            graph: Some(pb::GraphProto {
-                initializer,
-                node,
-                ..Default::default()
-            }),
-            ..Default::default()
-        }
-    }
+    use crate::engine::test_graphs::{model, node, run, tensor, value_info};
 
     /// Two output channels of a 2×1×1×2 weight, scales 0.5 and 0.25, zero points 0 and 2.
     fn weights_only_model() -> pb::ModelProto {
@@ -655,55 +575,13 @@ mod tests {
             vec![q, a, b],
         );
         let graph = m.graph.as_mut().unwrap();
-        graph.input = vec![value_info("x")];
-        graph.output = vec![value_info("a"), value_info("b")];
+        graph.input = vec![value_info("x", 8)];
+        graph.output = vec![value_info("a", 8), value_info("b", 8)];
         m.opset_import = vec![pb::OperatorSetIdProto {
             domain: String::new(),
             version: 13,
         }];
         m
-    }
-
-    fn value_info(name: &str) -> pb::ValueInfoProto {
-        pb::ValueInfoProto {
-            name: name.into(),
-            r#type: Some(pb::TypeProto {
-                value: Some(pb::type_proto::Value::TensorType(pb::type_proto::Tensor {
-                    elem_type: FLOAT,
-                    shape: Some(pb::TensorShapeProto {
-                        dim: vec![pb::tensor_shape_proto::Dimension {
-                            value: Some(pb::tensor_shape_proto::dimension::Value::DimValue(8)),
-                            ..Default::default()
-                        }],
-                    }),
-                })),
-                ..Default::default()
-            }),
-            ..Default::default()
-        }
-    }
-
-    fn run(model: &pb::ModelProto, x: &[f32]) -> Vec<Vec<f32>> {
-        use tract_onnx::prelude::*;
-        let plan = tract_onnx::onnx()
-            .model_for_proto_model(model)
-            .unwrap()
-            .into_optimized()
-            .unwrap()
-            .into_runnable()
-            .unwrap();
-        let input = tract_ndarray::Array1::from_vec(x.to_vec()).into_tensor();
-        plan.run(tvec!(input.into()))
-            .unwrap()
-            .iter()
-            .map(|t| {
-                t.to_plain_array_view::<f32>()
-                    .unwrap()
-                    .iter()
-                    .copied()
-                    .collect()
-            })
-            .collect()
     }
 
     #[test]

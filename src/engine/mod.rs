@@ -12,6 +12,11 @@ use crate::engine::manifest::Precision;
 
 mod fp16;
 mod int8;
+mod octaves;
+mod pool;
+mod proto;
+#[cfg(test)]
+mod test_graphs;
 pub mod locate;
 pub mod manifest;
 pub mod resample;

@@ -8,7 +8,9 @@ use tract_onnx::prelude::multithread::{multithread_tract_scope, Executor};
 use tract_onnx::prelude::*;
 use tract_onnx::tract_core::plan::SimpleState;
 
-use super::{check_names, fp16, int8, Engine, EngineError, ModelSource, Plan, Tensor};
+use super::{
+    check_names, fp16, int8, octaves, pool, Engine, EngineError, ModelSource, Plan, Tensor,
+};
 use crate::engine::manifest::Precision;
 
 const NAME: &str = "tract";
@@ -230,6 +232,17 @@ fn optimized(
             model.path.display()
         );
     }
+    // After the int8 rewrites: a pool's channels are read from float weights.
+    let n = octaves::double_angle_octaves(&mut proto);
+    log::debug!(
+        "{}: {n} frequency-encoding octaves computed from the octave below",
+        model.path.display()
+    );
+    let n = pool::average_pools_as_depthwise(&mut proto);
+    log::debug!(
+        "{}: {n} average pools run as depthwise convolutions",
+        model.path.display()
+    );
     let mut graph = onnx.model_for_proto_model(&proto).map_err(load)?;
     let names = input_names(&graph).map_err(load)?;
     let wanted: Vec<&str> = shapes.iter().map(|(n, _)| *n).collect();

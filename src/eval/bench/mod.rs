@@ -426,6 +426,7 @@ pub fn run(args: &BenchConfig, command: &str) -> Result<Report, BenchError> {
         threads: args.threads,
         runs: args.runs,
         load_average,
+        cpu: cpu_model(),
         depth_model: depth_label(&ctx.depth),
         reshade_model: ctx.reshade_label.clone(),
         cases,
@@ -490,6 +491,14 @@ impl Drop for TempDir {
     fn drop(&mut self) {
         let _ = std::fs::remove_dir_all(&self.0);
     }
+}
+
+/// The processor's model name, from Linux's `/proc/cpuinfo`.
+fn cpu_model() -> Option<String> {
+    let text = std::fs::read_to_string("/proc/cpuinfo").ok()?;
+    text.lines()
+        .find_map(|line| line.strip_prefix("model name")?.split_once(':'))
+        .map(|(_, name)| name.trim().to_owned())
 }
 
 fn load_average() -> Option<[f64; 3]> {

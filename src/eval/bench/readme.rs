@@ -35,9 +35,10 @@ pub fn block(report: &Report, source: &str) -> String {
         .next()
         .unwrap_or(&report.reshade_model);
     format!(
-        "From `reshader bench` ({}, {} threads, {reshading}): {source}\n\n{}",
+        "From `reshader bench` ({}, {} threads on {}, {reshading}): {source}\n\n{}",
         report.profile,
         report.threads,
+        report.cpu_name(),
         super::targets::table(report)
     )
 }

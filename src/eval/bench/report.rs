@@ -180,6 +180,10 @@ pub struct Report {
     pub threads: usize,
     pub runs: usize,
     pub load_average: Option<[f64; 3]>,
+    /// The processor's model name (`/proc/cpuinfo`): times from another processor do
+    /// not compare. None in reports from before it was recorded.
+    #[serde(default)]
+    pub cpu: Option<String>,
     pub reshade_model: String,
     pub depth_model: String,
     pub cases: Vec<Case>,
@@ -266,8 +270,10 @@ impl Report {
         );
         let _ = writeln!(
             out,
-            "- {} threads, median (min–max) of {} runs, ms; load average at start: {load}",
-            self.threads, self.runs
+            "- {} threads on {}, median (min–max) of {} runs, ms; load average at start: {load}",
+            self.threads,
+            self.cpu_name(),
+            self.runs
         );
         let _ = writeln!(out, "- reshading model: {}", self.reshade_model);
         let _ = writeln!(out, "- depth model: {}", self.depth_model);
@@ -372,6 +378,11 @@ impl Report {
 
     /// Markdown table of the change of every stage's median from `previous` to `self`;
     /// cases and stages present on one side only are listed as such.
+    /// The processor, or "an unrecorded processor".
+    pub fn cpu_name(&self) -> &str {
+        self.cpu.as_deref().unwrap_or("an unrecorded processor")
+    }
+
     pub fn compare(&self, previous: &Report) -> String {
         let mut out = String::new();
         let _ = writeln!(
@@ -386,11 +397,12 @@ impl Report {
             load_text(self.load_average),
         );
         for (what, old, new) in [
+            ("processor", previous.cpu_name(), self.cpu_name()),
             ("depth model", &previous.depth_model, &self.depth_model),
             (
                 "reshading model",
-                &previous.reshade_model,
-                &self.reshade_model,
+                previous.reshade_model.as_str(),
+                self.reshade_model.as_str(),
             ),
         ] {
             if old != new {

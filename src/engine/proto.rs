@@ -1,0 +1,53 @@
+//! Reading ONNX protobuf tensors, for the graph rewrites done at load time.
+
+use std::collections::HashMap;
+
+use tract_onnx::pb::{self, tensor_proto::DataType};
+
+const FLOAT: i32 = DataType::Float as i32;
+
+/// Each initializer's position in the graph, by name.
+pub(super) fn initializer_index(graph: &pb::GraphProto) -> HashMap<String, usize> {
+    graph
+        .initializer
+        .iter()
+        .enumerate()
+        .map(|(i, t)| (t.name.clone(), i))
+        .collect()
+}
+
+pub(super) fn floats(t: &pb::TensorProto) -> Result<Vec<f32>, String> {
+    words(
+        t,
+        FLOAT,
+        "scale",
+        "float",
+        &t.float_data,
+        f32::from_le_bytes,
+    )
+}
+
+/// The values of a tensor of 4-byte elements of type `data_type`, from its raw bytes
+/// (little-endian) or its typed field `typed`; `role` and `kind` name it in the error.
+pub(super) fn words<T: Clone>(
+    t: &pb::TensorProto,
+    data_type: i32,
+    role: &str,
+    kind: &str,
+    typed: &[T],
+    from_le: fn([u8; 4]) -> T,
+) -> Result<Vec<T>, String> {
+    if t.data_type != data_type {
+        return Err(format!(
+            "{role} {:?} has element type {}; expected {kind}",
+            t.name, t.data_type
+        ));
+    }
+    if t.raw_data.is_empty() {
+        return Ok(typed.to_vec());
+    }
+    Ok(t.raw_data
+        .chunks_exact(4)
+        .map(|b| from_le([b[0], b[1], b[2], b[3]]))
+        .collect())
+}

@@ -194,12 +194,18 @@ impl Grid {
     }
 }
 
+/// 1.5 · 2²³: added to a float of magnitude below 2²² and taken away again, it rounds
+/// that float to an integer, half to even (the sum's spacing is 1, and the constant is
+/// even), in two vectorised additions; tract's Round is a scalar loop.
+const ROUNDING_MAGIC: f32 = 12_582_912.0;
+
 /// Replaces each `QuantizeLinear` whose every reader is a `DequantizeLinear` on the same
 /// scalar grid by the float arithmetic the pair computes,
-/// `scale · clip(round(x / scale), min − zero, max − zero)`: the same values, rounded to
-/// the same grid (both round half to even), in element-wise ops that tract runs
-/// vectorised, where its QuantizeLinear is a scalar loop (56 % of the int8 depth
-/// network's time after [`unfuse_qlinear_convs`]). Returns how many were replaced.
+/// `scale · round(clip(x / scale, min − zero, max − zero))` (clipping to integers first
+/// leaves the rounding unchanged and keeps it in [`ROUNDING_MAGIC`]'s range): the same
+/// values, rounded to the same grid (both round half to even), in element-wise ops that
+/// tract runs vectorised, where its QuantizeLinear is a scalar loop (56 % of the int8
+/// depth network's time after [`unfuse_qlinear_convs`]). Returns how many were replaced.
 pub fn fake_quantize_activations(model: &mut pb::ModelProto) -> Result<usize, String> {
     let Some(graph) = model.graph.as_mut() else {
         return Ok(0);
@@ -241,7 +247,7 @@ pub fn fake_quantize_activations(model: &mut pb::ModelProto) -> Result<usize, St
         .collect();
     let mut added = Vec::new();
     let mut consumed: HashSet<String> = HashSet::new();
-    let mut nodes = Vec::with_capacity(graph.node.len() + 3 * plans.len());
+    let mut nodes = Vec::with_capacity(graph.node.len() + 4 * plans.len());
     for (at, node) in std::mem::take(&mut graph.node).into_iter().enumerate() {
         if let Some((grid, _)) = plans.get(&at) {
             let base = node.output[0].clone();
@@ -267,31 +273,27 @@ pub fn fake_quantize_activations(model: &mut pb::ModelProto) -> Result<usize, St
                 output: vec![output],
                 ..Default::default()
             };
+            added.push(scalar(format!("{base}.fq.magic"), ROUNDING_MAGIC));
             let scale = format!("{base}.fq.scale");
+            let magic = format!("{base}.fq.magic");
+            let step = |name: &str| format!("{base}.fq.{name}");
             nodes.push(op(
                 "Div",
                 vec![node.input[0].clone(), scale.clone()],
-                format!("{base}.fq.div"),
-            ));
-            nodes.push(op(
-                "Round",
-                vec![format!("{base}.fq.div")],
-                format!("{base}.fq.round"),
+                step("div"),
             ));
             nodes.push(op(
                 "Clip",
-                vec![
-                    format!("{base}.fq.round"),
-                    format!("{base}.fq.min"),
-                    format!("{base}.fq.max"),
-                ],
-                format!("{base}.fq.clip"),
+                vec![step("div"), step("min"), step("max")],
+                step("clip"),
             ));
             nodes.push(op(
-                "Mul",
-                vec![format!("{base}.fq.clip"), scale],
-                format!("{base}.fq"),
+                "Add",
+                vec![step("clip"), magic.clone()],
+                step("shifted"),
             ));
+            nodes.push(op("Sub", vec![step("shifted"), magic], step("round")));
+            nodes.push(op("Mul", vec![step("round"), scale], base + ".fq"));
             consumed.extend(node.input.iter().skip(1).cloned());
         } else if let Some(value) = dequantizers.get(&at) {
             consumed.extend(node.input.iter().skip(1).cloned());
@@ -558,6 +560,10 @@ mod tests {
     /// x → QuantizeLinear (scale 0.5, zero 10, uint8) → two DequantizeLinear readers on
     /// the same grid (one with its own copies of the scale and zero point).
     fn quantize_model() -> pb::ModelProto {
+        quantize_model_with(0.5)
+    }
+
+    fn quantize_model_with(scale: f32) -> pb::ModelProto {
         let f = |v: f32| v.to_le_bytes().to_vec();
         let mut q = node("QuantizeLinear", &["x", "s", "z"], "xq");
         q.attribute.clear();
@@ -567,9 +573,9 @@ mod tests {
         b.attribute.clear();
         let mut m = model(
             vec![
-                tensor("s", FLOAT, &[], f(0.5)),
+                tensor("s", FLOAT, &[], f(scale)),
                 tensor("z", UINT8, &[], vec![10]),
-                tensor("s2", FLOAT, &[], f(0.5)),
+                tensor("s2", FLOAT, &[], f(scale)),
                 tensor("z2", UINT8, &[], vec![10]),
             ],
             vec![q, a, b],
@@ -593,7 +599,10 @@ mod tests {
         assert_eq!(fake_quantize_activations(&mut model), Ok(1));
         let graph = model.graph.as_ref().unwrap();
         let ops: Vec<&str> = graph.node.iter().map(|n| n.op_type.as_str()).collect();
-        assert_eq!(ops, ["Div", "Round", "Clip", "Mul", "Identity", "Identity"]);
+        assert_eq!(
+            ops,
+            ["Div", "Clip", "Add", "Sub", "Mul", "Identity", "Identity"]
+        );
         for gone in ["z", "s2", "z2"] {
             assert!(graph.initializer.iter().all(|t| t.name != gone), "{gone}");
         }
@@ -602,6 +611,28 @@ mod tests {
         // (0 − 10)·0.5 = −5 at the bottom, (255 − 10)·0.5 = 122.5 at the top, and 0.25 and
         // 0.75 are ties that round to the even 0 and 2 halves.
         assert_eq!(after[0], [-5.0, -5.0, 0.0, 1.0, 1.5, 2.5, 122.0, 122.5]);
+    }
+
+    #[test]
+    fn a_scale_without_an_exact_reciprocal_rounds_as_tract_s_quantize_linear() {
+        // Near every half step of a 0.1 grid, where x / 0.1 and x · (1 / 0.1) may differ
+        // in the last bit and a tie may go either way.
+        let x: Vec<f32> = (-40..2600)
+            .flat_map(|k| {
+                let tie = (k as f32 + 0.5) * 0.1;
+                [
+                    tie,
+                    f32::from_bits(tie.to_bits() + 1),
+                    f32::from_bits(tie.to_bits() - 1),
+                ]
+            })
+            .collect();
+        let original = quantize_model_with(0.1);
+        let mut rewritten = original.clone();
+        assert_eq!(fake_quantize_activations(&mut rewritten), Ok(1));
+        for chunk in x.chunks_exact(8) {
+            assert_eq!(run(&original, chunk), run(&rewritten, chunk), "{chunk:?}");
+        }
     }
 
     #[test]

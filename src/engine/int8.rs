@@ -15,7 +15,7 @@
 
 use std::collections::{HashMap, HashSet};
 
-use super::proto::{floats, initializer_index, words};
+use super::proto::{floats, initializer_index, readers, words};
 use tract_onnx::pb::{self, tensor_proto::DataType};
 
 const FLOAT: i32 = DataType::Float as i32;
@@ -212,12 +212,7 @@ pub fn fake_quantize_activations(model: &mut pb::ModelProto) -> Result<usize, St
     };
     let initializers = initializer_index(graph);
     let outputs: HashSet<&String> = graph.output.iter().map(|o| &o.name).collect();
-    let mut readers: HashMap<&String, Vec<usize>> = HashMap::new();
-    for (at, node) in graph.node.iter().enumerate() {
-        for input in &node.input {
-            readers.entry(input).or_default().push(at);
-        }
-    }
+    let readers = readers(graph);
     // Each replaceable QuantizeLinear, by position, with its grid and its readers.
     let mut plans: HashMap<usize, (Grid, Vec<usize>)> = HashMap::new();
     for (at, node) in graph.node.iter().enumerate() {

@@ -11,7 +11,7 @@ use std::collections::{HashMap, HashSet};
 
 use tract_onnx::pb;
 
-use super::proto::{floats, initializer_index};
+use super::proto::{floats, initializer_index, readers};
 
 /// One Mul(x, c) whose product only Sin and Cos read: sin(c·x) and cos(c·x).
 struct Octave {
@@ -88,12 +88,7 @@ fn doubling(s: &str, c: &str, s2: &str, c2: &str) -> [pb::NodeProto; 5] {
 fn find_chains(graph: &pb::GraphProto) -> Vec<Vec<Octave>> {
     let scalars = scalar_constants(graph);
     let outputs: HashSet<&String> = graph.output.iter().map(|o| &o.name).collect();
-    let mut readers: HashMap<&String, Vec<usize>> = HashMap::new();
-    for (at, node) in graph.node.iter().enumerate() {
-        for input in &node.input {
-            readers.entry(input).or_default().push(at);
-        }
-    }
+    let readers = readers(graph);
     let mut by_input: HashMap<&String, Vec<Octave>> = HashMap::new();
     for (at, node) in graph.node.iter().enumerate() {
         if node.op_type != "Mul" || node.input.len() != 2 || node.output.len() != 1 {

@@ -6,6 +6,17 @@ use tract_onnx::pb::{self, tensor_proto::DataType};
 
 const FLOAT: i32 = DataType::Float as i32;
 
+/// The positions of the nodes that read each tensor, by name.
+pub(super) fn readers(graph: &pb::GraphProto) -> HashMap<&String, Vec<usize>> {
+    let mut readers: HashMap<&String, Vec<usize>> = HashMap::new();
+    for (at, node) in graph.node.iter().enumerate() {
+        for input in &node.input {
+            readers.entry(input).or_default().push(at);
+        }
+    }
+    readers
+}
+
 /// Each initializer's position in the graph, by name.
 pub(super) fn initializer_index(graph: &pb::GraphProto) -> HashMap<String, usize> {
     graph

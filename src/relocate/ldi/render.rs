@@ -4,7 +4,7 @@
 //! subsamples, which anti-aliases the silhouettes.
 
 use super::mesh::{Mesh, Vertex};
-use crate::relocate::raster_triangle;
+use crate::relocate::{first_centre, past_last_centre, raster_triangle};
 use crate::views::Intrinsics;
 
 /// Where a subsample's colour came from.
@@ -45,12 +45,15 @@ pub(super) fn rasterise(
     let mut inv_z = vec![0.0f32; w * h];
     let mut sample = vec![EMPTY; w * h];
     for (s, quad) in mesh.samples.iter().enumerate() {
+        let s = s as u32;
         let [a, b, c, d] = quad.corners.map(|i| projected[i as usize]);
         if outside([a, b, c, d], w as f32, h as f32) {
             continue;
         }
-        for tri in [[a, b, c], [b, d, c]] {
-            fill_triangle(tri, s as u32, w, h, &mut inv_z, &mut sample);
+        if !fill_trapezoid([a, b, c, d], s, w, h, &mut inv_z, &mut sample) {
+            for tri in [[a, b, c], [b, d, c]] {
+                fill_triangle(tri, s, w, h, &mut inv_z, &mut sample);
+            }
         }
     }
     let origin = sample
@@ -97,15 +100,30 @@ fn project(mesh: &Mesh, centre: [f64; 3], k: &Intrinsics) -> Vec<[f32; 3]> {
 pub(super) fn project_vertex(v: &Vertex, centre: [f64; 3], k: &Intrinsics) -> Option<[f32; 3]> {
     let [tx, ty, tz] = centre.map(|c| c as f32);
     let (fx, fy, cx, cy) = (k.fx as f32, k.fy as f32, k.cx as f32, k.cy as f32);
-    let z = 1.0 / v.disparity;
-    let (qx, qy, qz) = (v.ray[0] * z - tx, v.ray[1] * z - ty, z - tz);
-    // NaN comes from an infinite camera offset.
-    if qz.is_nan() || qz <= 1e-6 {
-        return None;
-    }
-    let inv = 1.0 / qz;
-    let p = [fx * qx * inv + cx, fy * qy * inv + cy, inv];
-    (p.iter().all(|c| c.is_finite()) && inv > 0.0).then_some(p)
+    let p = if ty == 0.0 && tz == 0.0 {
+        // A camera moved sideways only (every view of a lenticular rig): 1/z is the
+        // disparity itself, x shifts by the disparity's parallax and y stays put. No
+        // division, and every row of corners stays exactly on one screen row whatever
+        // its depths, which lets the quads rasterise as trapezoids.
+        if !(v.disparity > 0.0 && v.disparity < 1e6) {
+            return None;
+        }
+        [
+            fx * (v.ray[0] - tx * v.disparity) + cx,
+            fy * v.ray[1] + cy,
+            v.disparity,
+        ]
+    } else {
+        let z = 1.0 / v.disparity;
+        let (qx, qy, qz) = (v.ray[0] * z - tx, v.ray[1] * z - ty, z - tz);
+        // NaN comes from an infinite camera offset.
+        if qz.is_nan() || qz <= 1e-6 {
+            return None;
+        }
+        let inv = 1.0 / qz;
+        [fx * qx * inv + cx, fy * qy * inv + cy, inv]
+    };
+    (p.iter().all(|c| c.is_finite()) && p[2] > 0.0).then_some(p)
 }
 
 /// Writes `id` into the pixel centres inside the triangle where it is nearer than what
@@ -131,6 +149,79 @@ fn fill_triangle(
     });
 }
 
+/// Rasterises the quad (corners top-left, top-right, bottom-left, bottom-right) as the
+/// two triangles `[a, b, c]` and `[b, d, c]` would be, in one pass of scanlines, when
+/// its top and bottom edges are horizontal and it is not folded over: the case of every
+/// quad of a sideways camera. False, having drawn nothing, for any other quad.
+///
+/// A centre on an edge is covered by both quads that share it, as with
+/// [`fill_triangle`]: neighbours compute the edge from the same corners, so no crack
+/// opens between them; nearer (or, at equal depth, earlier) wins as before.
+fn fill_trapezoid(
+    q: [[f32; 3]; 4],
+    id: u32,
+    w: usize,
+    h: usize,
+    inv_z: &mut [f32],
+    sample: &mut [u32],
+) -> bool {
+    let [a, b, c, d] = q.map(|v| v.map(f64::from));
+    let proper = a[1] == b[1] && c[1] == d[1] && a[1] < c[1] && a[0] <= b[0] && c[0] <= d[0];
+    if !proper || q.iter().any(|v| v[2] <= 0.0) {
+        return false;
+    }
+    // 1/z is affine over each triangle. Along a row it changes as along the triangle's
+    // horizontal edge (the top one for [a, b, c], the bottom one for [b, d, c]), and each
+    // row starts from the triangle's vertical-ish edge: a-c for the upper, b-d for the
+    // lower. A triangle of no width draws nothing, and its neighbour covers the quad.
+    let (top_w, bottom_w) = (b[0] - a[0], d[0] - c[0]);
+    let upper = (top_w > 0.0).then(|| (b[2] - a[2]) / top_w);
+    let lower = (bottom_w > 0.0).then(|| (d[2] - c[2]) / bottom_w);
+    if upper.is_none() && lower.is_none() {
+        return true;
+    }
+    let (top, bottom) = (a[1], c[1]);
+    let per_pixel = 1.0 / (bottom - top);
+    let rows = first_centre(top - 0.5 - EPS, h)..past_last_centre(bottom - 0.5 + EPS, h);
+    for y in rows {
+        let t = ((y as f64 + 0.5 - top) * per_pixel).clamp(0.0, 1.0);
+        let along = |p: [f64; 3], q: [f64; 3]| [p[0] + t * (q[0] - p[0]), p[2] + t * (q[2] - p[2])];
+        let (left, right) = (along(a, c), along(b, d));
+        let xs = first_centre(left[0] - 0.5 - EPS, w);
+        let xe = past_last_centre(right[0] - 0.5 + EPS, w);
+        if xe <= xs {
+            continue;
+        }
+        let split = match (upper, lower) {
+            (Some(_), Some(_)) => past_last_centre(along(b, c)[0] - 0.5, w).clamp(xs, xe),
+            (Some(_), None) => xe,
+            (None, _) => xs,
+        };
+        let row = y * w;
+        let spans = [
+            (xs..split, left, upper.unwrap_or(0.0)),
+            (split..xe, right, lower.unwrap_or(0.0)),
+        ];
+        for (span, [x0, z0], gradient) in spans {
+            let pixels = row + span.start..row + span.end;
+            let (zs, ss) = (&mut inv_z[pixels.clone()], &mut sample[pixels]);
+            for (k, (old_z, old_s)) in zs.iter_mut().zip(ss).enumerate() {
+                let u = (span.start + k) as f64 + 0.5;
+                let z = (z0 + gradient * (u - x0)) as f32;
+                // Selects rather than branches: which quad is nearer is unpredictable.
+                let nearer = z > *old_z;
+                *old_z = if nearer { z } else { *old_z };
+                *old_s = if nearer { id } else { *old_s };
+            }
+        }
+    }
+    true
+}
+
+/// How far past an edge a pixel centre still counts as on it, in pixels: rounding
+/// must not open cracks between quads that share the edge.
+const EPS: f64 = 1e-6;
+
 /// Each uncovered subsample takes the sample of the farthest of the nearest covered
 /// subsamples to its left, right, top and bottom: what is left uncovered opens next to
 /// an occluder or the frame, and the background lies on the far side. A subsample
@@ -151,21 +242,45 @@ fn fill_pass(sample: &mut [u32], inv_z: &mut [f32], w: usize, h: usize) {
     // scratch a quarter of Option<usize>'s size (a view has far fewer subsamples).
     const NONE: u32 = u32::MAX;
     let mut best = vec![NONE; w * h];
-    // (first index, stride, length) of every row and column.
-    let rows = (0..h).map(|y| (y * w, 1, w));
-    let columns = (0..w).map(|x| (x, w, h));
-    for (start, stride, len) in rows.chain(columns) {
-        for reversed in [false, true] {
+    let mut offer = |i: usize, from: u32| {
+        let b = best[i];
+        if from != NONE && (b == NONE || inv_z[from as usize] < inv_z[b as usize]) {
+            best[i] = from;
+        }
+    };
+    let holed: Vec<bool> = sample.chunks_exact(w).map(|r| r.contains(&EMPTY)).collect();
+    // Left, then right, then above, then below, for every subsample: at equal depth the
+    // first offer stands.
+    for y in (0..h).filter(|&y| holed[y]) {
+        let row = y * w..(y + 1) * w;
+        for order in [row.clone().collect::<Vec<_>>(), row.rev().collect()] {
             let mut last = NONE;
-            for k in 0..len {
-                let i = start + stride * if reversed { len - 1 - k } else { k };
+            for i in order {
                 if sample[i] != EMPTY {
                     last = i as u32;
-                } else if last != NONE {
-                    let b = best[i];
-                    if b == NONE || inv_z[last as usize] < inv_z[b as usize] {
-                        best[i] = last;
-                    }
+                } else {
+                    offer(i, last);
+                }
+            }
+        }
+    }
+    // Columns are swept a row at a time, with the last covered subsample of every
+    // column at hand: striding down each column missed the cache at every step.
+    for rows in [(0..h).collect::<Vec<_>>(), (0..h).rev().collect()] {
+        let mut last = vec![NONE; w];
+        for y in rows {
+            let row = y * w;
+            if !holed[y] {
+                for (x, l) in last.iter_mut().enumerate() {
+                    *l = (row + x) as u32;
+                }
+                continue;
+            }
+            for (x, l) in last.iter_mut().enumerate() {
+                if sample[row + x] != EMPTY {
+                    *l = (row + x) as u32;
+                } else {
+                    offer(row + x, *l);
                 }
             }
         }
@@ -180,7 +295,99 @@ fn fill_pass(sample: &mut [u32], inv_z: &mut [f32], w: usize, h: usize) {
 
 #[cfg(test)]
 mod tests {
-    use super::outside;
+    use super::{fill_trapezoid, fill_triangle, outside, EMPTY};
+
+    /// Draws the quad both ways into fresh 40×30 buffers.
+    fn both_ways(q: [[f32; 3]; 4]) -> [(Vec<f32>, Vec<u32>); 2] {
+        let (w, h) = (40, 30);
+        let fresh = || (vec![0.0f32; w * h], vec![EMPTY; w * h]);
+        let (mut trapezoid, mut triangles) = (fresh(), fresh());
+        assert!(fill_trapezoid(
+            q,
+            7,
+            w,
+            h,
+            &mut trapezoid.0,
+            &mut trapezoid.1
+        ));
+        let [a, b, c, d] = q;
+        for tri in [[a, b, c], [b, d, c]] {
+            fill_triangle(tri, 7, w, h, &mut triangles.0, &mut triangles.1);
+        }
+        [trapezoid, triangles]
+    }
+
+    #[test]
+    fn a_trapezoid_covers_what_its_two_triangles_cover_at_their_depths() {
+        let mut state = 0x2545_f491_4f6c_dd1du64;
+        let mut uniform = |lo: f32, hi: f32| {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            lo + (hi - lo) * (state >> 40) as f32 / (1u64 << 24) as f32
+        };
+        let mut covered = 0;
+        for case in 0..500 {
+            // Half the cases on the subsample lattice, where centres fall exactly on the
+            // diagonal and the edges of neighbouring quads.
+            let mut at = |lo: f32, hi: f32| {
+                let v = uniform(lo, hi);
+                if case % 2 == 0 {
+                    v.round()
+                } else {
+                    v
+                }
+            };
+            let (top, bottom) = (at(-3.0, 20.0), at(1.0, 12.0));
+            let (ax, cx) = (at(-4.0, 36.0), at(-4.0, 36.0));
+            let (bx, dx) = (ax + at(0.0, 6.0), cx + at(0.0, 6.0));
+            let mut z = || uniform(0.2, 1.0);
+            let q = [
+                [ax, top, z()],
+                [bx, top, z()],
+                [cx, top + bottom, z()],
+                [dx, top + bottom, z()],
+            ];
+            let [(tz, ts), (rz, rs)] = both_ways(q);
+            assert_eq!(ts, rs, "{q:?}");
+            for (i, (t, r)) in tz.iter().zip(&rz).enumerate() {
+                assert!(
+                    (t - r).abs() <= 1e-5 * r.abs(),
+                    "{q:?} pixel {i}: {t} vs {r}"
+                );
+            }
+            covered += ts.iter().filter(|&&s| s != EMPTY).count();
+        }
+        assert!(covered > 5_000, "the cases cover pixels: {covered}");
+    }
+
+    #[test]
+    fn quads_that_are_not_horizontal_trapezoids_are_left_to_the_triangles() {
+        let (w, h) = (10, 10);
+        let (mut z, mut s) = (vec![0.0f32; w * h], vec![EMPTY; w * h]);
+        let slanted = [
+            [1.0, 1.0, 1.0],
+            [5.0, 2.0, 1.0],
+            [1.0, 5.0, 1.0],
+            [5.0, 6.0, 1.0],
+        ];
+        let folded = [
+            [5.0, 1.0, 1.0],
+            [1.0, 1.0, 1.0],
+            [1.0, 5.0, 1.0],
+            [5.0, 5.0, 1.0],
+        ];
+        let behind = [
+            [1.0, 1.0, 1.0],
+            [5.0, 1.0, 0.0],
+            [1.0, 5.0, 1.0],
+            [5.0, 5.0, 1.0],
+        ];
+        for q in [slanted, folded, behind] {
+            assert!(!fill_trapezoid(q, 1, w, h, &mut z, &mut s), "{q:?}");
+        }
+        assert!(s.iter().all(|&s| s == EMPTY));
+    }
 
     #[test]
     fn only_quads_wholly_beyond_one_side_are_culled() {

@@ -230,3 +230,21 @@ fn a_live_relocator_never_narrows_its_crop_framing() {
     live.prepare(&colours, &deep, &camera(), &cameras).unwrap();
     assert_ne!(render_flat(&live), colours);
 }
+
+#[test]
+fn the_plain_render_is_the_detailed_render_s_image() {
+    let (frame, depth) = textured_square();
+    let colours = SrgbImage::from_rgb8(&frame);
+    for border in [Border::Crop, Border::Extend, Border::Inpaint] {
+        let config = LdiConfig {
+            border,
+            ..LdiConfig::default()
+        };
+        let ldi = ldi::Ldi::build(&colours, &depth, &camera(), &config, 0.4).unwrap();
+        for cam in [view(-0.4), view(0.1), view(0.35)] {
+            let plain = ldi.render(&colours, &cam).unwrap();
+            let detailed = ldi.render_detailed(&colours, &cam).unwrap();
+            assert_eq!(plain.data(), detailed.image.data(), "{border:?}");
+        }
+    }
+}

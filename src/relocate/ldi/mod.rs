@@ -303,14 +303,31 @@ impl Ldi {
         colours: &SrgbImage,
         view: &ViewCamera,
     ) -> Result<SrgbImage, RelocateError> {
-        Ok(self.render_detailed(colours, view)?.image)
+        if self.border == Border::Inpaint {
+            return Ok(self.render_detailed(colours, view)?.image);
+        }
+        self.check_colours(colours)?;
+        let frame = self.rasterise(view, false);
+        Ok(self.resolve_image(&frame, colours))
     }
 
+    /// The view with the fractions of each pixel that show original pixels and holes
+    /// (the evaluation's regions, and where `--border inpaint` synthesises).
     pub fn render_detailed(
         &self,
         colours: &SrgbImage,
         view: &ViewCamera,
     ) -> Result<Rendered, RelocateError> {
+        self.check_colours(colours)?;
+        let frame = self.rasterise(view, true);
+        let mut rendered = self.resolve(&frame, colours);
+        if self.border == Border::Inpaint {
+            synthesize_holes(&mut rendered, &frame);
+        }
+        Ok(rendered)
+    }
+
+    fn check_colours(&self, colours: &SrgbImage) -> Result<(), RelocateError> {
         let (w, h) = (self.stats.width, self.stats.height);
         if (colours.width() as usize, colours.height() as usize) != (w, h) {
             return Err(RelocateError::SizeMismatch {
@@ -322,20 +339,17 @@ impl Ldi {
                 camera_h: self.source.height,
             });
         }
-        let frame = self.rasterise(view);
-        let mut rendered = self.resolve(&frame, colours);
-        if self.border == Border::Inpaint {
-            synthesize_holes(&mut rendered, &frame);
-        }
-        Ok(rendered)
+        Ok(())
     }
 
-    fn rasterise(&self, view: &ViewCamera) -> render::Frame {
+    /// Rasterises the mesh for `view`; `origins` asks for where each subsample's colour
+    /// came from, which only the detailed render reads.
+    fn rasterise(&self, view: &ViewCamera, origins: bool) -> render::Frame {
         let k = self.supersampling;
         let intrinsics = supersampled(&self.framed(&view.intrinsics), k);
         let centre = view.centre.map(|c| c / self.scale);
         let front_samples = self.stats.width * self.stats.height;
-        render::rasterise(&self.mesh, front_samples, centre, &intrinsics, k)
+        render::rasterise(&self.mesh, front_samples, centre, &intrinsics, k, origins)
     }
 
     /// The view as a lookup into the colours: each pixel's subsamples' source pixels.
@@ -345,7 +359,7 @@ impl Ldi {
         if self.border == Border::Inpaint || self.band_rgb.is_some() {
             return None;
         }
-        let frame = self.rasterise(view);
+        let frame = self.rasterise(view, false);
         let k = frame.factor;
         let (ow, oh) = (frame.width / k, frame.height / k);
         let mut sources = Vec::with_capacity(frame.sample.len());
@@ -435,9 +449,41 @@ impl Ldi {
         }
     }
 
+    /// Averages each output pixel's subsamples, looking up every sample's colour: the
+    /// image alone, a row of subsamples at a time, in the order [`Ldi::resolve`] adds
+    /// them (so the two give the same image).
+    fn resolve_image(&self, frame: &render::Frame, colours: &SrgbImage) -> SrgbImage {
+        let k = frame.factor;
+        let (ow, oh) = (frame.width / k, frame.height / k);
+        let data = colours.data();
+        let front_samples = self.stats.width * self.stats.height;
+        let weight = 1.0 / (k * k) as f32;
+        let mut rgb = vec![0.0f32; ow * oh * 3];
+        for (y, out) in rgb.chunks_exact_mut(ow * 3).enumerate() {
+            for sy in 0..k {
+                let row = &frame.sample[(y * k + sy) * frame.width..][..ow * k];
+                for (px, subsamples) in out.chunks_exact_mut(3).zip(row.chunks_exact(k)) {
+                    for &s in subsamples {
+                        let colour = self.sample_colour(s, data, front_samples);
+                        for c in 0..3 {
+                            px[c] += colour[c] * weight;
+                        }
+                    }
+                }
+            }
+        }
+        let image =
+            image::Rgb32FImage::from_raw(ow as u32, oh as u32, rgb).expect("buffer matches size");
+        SrgbImage::from_rgb32f(image)
+    }
+
     /// Averages each output pixel's subsamples, looking up every sample's colour.
     fn resolve(&self, frame: &render::Frame, colours: &SrgbImage) -> Rendered {
         let k = frame.factor;
+        let origin = frame
+            .origin
+            .as_deref()
+            .expect("the detailed render rasterises with origins");
         let (ow, oh) = (frame.width / k, frame.height / k);
         let data = colours.data();
         let front_samples = self.stats.width * self.stats.height;
@@ -455,7 +501,7 @@ impl Ldi {
                         for c in 0..3 {
                             rgb[c] += colour[c] * weight;
                         }
-                        match frame.origin[i] {
+                        match origin[i] {
                             Origin::Front => front += weight,
                             Origin::Filled => hole += weight,
                             Origin::Back => {}

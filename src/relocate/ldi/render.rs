@@ -21,7 +21,8 @@ pub(super) struct Frame {
     pub height: usize,
     pub factor: usize,
     pub sample: Vec<u32>,
-    pub origin: Vec<Origin>,
+    /// Where each subsample's colour came from, when asked for.
+    pub origin: Option<Vec<Origin>>,
     /// 1/z per subsample; filled subsamples have the surface they were filled from.
     pub inv_z: Vec<f32>,
 }
@@ -39,6 +40,7 @@ pub(super) fn rasterise(
     centre: [f64; 3],
     k: &Intrinsics,
     factor: usize,
+    origins: bool,
 ) -> Frame {
     let (w, h) = (k.width as usize, k.height as usize);
     let projected = project(mesh, centre, k);
@@ -56,14 +58,16 @@ pub(super) fn rasterise(
             }
         }
     }
-    let origin = sample
-        .iter()
-        .map(|&s| match s {
-            EMPTY => Origin::Filled,
-            s if (s as usize) < front_samples => Origin::Front,
-            _ => Origin::Back,
-        })
-        .collect();
+    let origin = origins.then(|| {
+        sample
+            .iter()
+            .map(|&s| match s {
+                EMPTY => Origin::Filled,
+                s if (s as usize) < front_samples => Origin::Front,
+                _ => Origin::Back,
+            })
+            .collect()
+    });
     fill_holes(&mut sample, &mut inv_z, w, h);
     Frame {
         width: w,

@@ -308,7 +308,7 @@ impl Ldi {
         }
         self.check_colours(colours)?;
         let frame = self.rasterise(view, false);
-        Ok(self.resolve_image(&frame, colours))
+        Ok(self.resolve(&frame, colours))
     }
 
     /// The view with the fractions of each pixel that show original pixels and holes
@@ -320,7 +320,12 @@ impl Ldi {
     ) -> Result<Rendered, RelocateError> {
         self.check_colours(colours)?;
         let frame = self.rasterise(view, true);
-        let mut rendered = self.resolve(&frame, colours);
+        let (front_fraction, hole_fraction) = fractions(&frame);
+        let mut rendered = Rendered {
+            image: self.resolve(&frame, colours),
+            front_fraction,
+            hole_fraction,
+        };
         if self.border == Border::Inpaint {
             synthesize_holes(&mut rendered, &frame);
         }
@@ -449,10 +454,9 @@ impl Ldi {
         }
     }
 
-    /// Averages each output pixel's subsamples, looking up every sample's colour: the
-    /// image alone, a row of subsamples at a time, in the order [`Ldi::resolve`] adds
-    /// them (so the two give the same image).
-    fn resolve_image(&self, frame: &render::Frame, colours: &SrgbImage) -> SrgbImage {
+    /// Averages each output pixel's subsamples, looking up every sample's colour, a
+    /// row of subsamples at a time.
+    fn resolve(&self, frame: &render::Frame, colours: &SrgbImage) -> SrgbImage {
         let k = frame.factor;
         let (ow, oh) = (frame.width / k, frame.height / k);
         let data = colours.data();
@@ -476,49 +480,35 @@ impl Ldi {
             image::Rgb32FImage::from_raw(ow as u32, oh as u32, rgb).expect("buffer matches size");
         SrgbImage::from_rgb32f(image)
     }
+}
 
-    /// Averages each output pixel's subsamples, looking up every sample's colour.
-    fn resolve(&self, frame: &render::Frame, colours: &SrgbImage) -> Rendered {
-        let k = frame.factor;
-        let origin = frame
-            .origin
-            .as_deref()
-            .expect("the detailed render rasterises with origins");
-        let (ow, oh) = (frame.width / k, frame.height / k);
-        let data = colours.data();
-        let front_samples = self.stats.width * self.stats.height;
-        let mut image = SrgbImage::new(ow as u32, oh as u32);
-        let mut front_fraction = vec![0.0; ow * oh];
-        let mut hole_fraction = vec![0.0; ow * oh];
-        let weight = 1.0 / (k * k) as f32;
-        for y in 0..oh {
-            for x in 0..ow {
-                let (mut rgb, mut front, mut hole) = ([0.0f32; 3], 0.0, 0.0);
-                for sy in 0..k {
-                    for sx in 0..k {
-                        let i = (y * k + sy) * frame.width + x * k + sx;
-                        let colour = self.sample_colour(frame.sample[i], data, front_samples);
-                        for c in 0..3 {
-                            rgb[c] += colour[c] * weight;
-                        }
-                        match origin[i] {
-                            Origin::Front => front += weight,
-                            Origin::Filled => hole += weight,
-                            Origin::Back => {}
-                        }
+/// Per output pixel, the fractions of its subsamples that show original pixels and
+/// that no quad covered.
+fn fractions(frame: &render::Frame) -> (Vec<f32>, Vec<f32>) {
+    let k = frame.factor;
+    let origin = frame
+        .origin
+        .as_deref()
+        .expect("the detailed render rasterises with origins");
+    let (ow, oh) = (frame.width / k, frame.height / k);
+    let weight = 1.0 / (k * k) as f32;
+    let mut front_fraction = vec![0.0; ow * oh];
+    let mut hole_fraction = vec![0.0; ow * oh];
+    for y in 0..oh {
+        for sy in 0..k {
+            let row = &origin[(y * k + sy) * frame.width..][..ow * k];
+            for (x, subsamples) in row.chunks_exact(k).enumerate() {
+                for o in subsamples {
+                    match o {
+                        Origin::Front => front_fraction[y * ow + x] += weight,
+                        Origin::Filled => hole_fraction[y * ow + x] += weight,
+                        Origin::Back => {}
                     }
                 }
-                image.put(x as u32, y as u32, rgb);
-                front_fraction[y * ow + x] = front;
-                hole_fraction[y * ow + x] = hole;
             }
         }
-        Rendered {
-            image,
-            front_fraction,
-            hole_fraction,
-        }
     }
+    (front_fraction, hole_fraction)
 }
 
 /// Replaces the colours of the pixels no sample covered (in part or whole) by patch

@@ -256,10 +256,10 @@ fn fill_pass(sample: &mut [u32], inv_z: &mut [f32], w: usize, h: usize) {
     // Left, then right, then above, then below, for every subsample: at equal depth the
     // first offer stands.
     for y in (0..h).filter(|&y| holed[y]) {
-        let row = y * w..(y + 1) * w;
-        for order in [row.clone().collect::<Vec<_>>(), row.rev().collect()] {
+        for reversed in [false, true] {
             let mut last = NONE;
-            for i in order {
+            for k in 0..w {
+                let i = y * w + if reversed { w - 1 - k } else { k };
                 if sample[i] != EMPTY {
                     last = i as u32;
                 } else {
@@ -270,9 +270,10 @@ fn fill_pass(sample: &mut [u32], inv_z: &mut [f32], w: usize, h: usize) {
     }
     // Columns are swept a row at a time, with the last covered subsample of every
     // column at hand: striding down each column missed the cache at every step.
-    for rows in [(0..h).collect::<Vec<_>>(), (0..h).rev().collect()] {
+    for reversed in [false, true] {
         let mut last = vec![NONE; w];
-        for y in rows {
+        for k in 0..h {
+            let y = if reversed { h - 1 - k } else { k };
             let row = y * w;
             if !holed[y] {
                 for (x, l) in last.iter_mut().enumerate() {

@@ -15,6 +15,7 @@ mod int8;
 mod octaves;
 mod pool;
 mod proto;
+mod transpose;
 #[cfg(test)]
 mod test_graphs;
 pub mod locate;

@@ -9,7 +9,8 @@ use tract_onnx::prelude::*;
 use tract_onnx::tract_core::plan::SimpleState;
 
 use super::{
-    check_names, fp16, int8, octaves, pool, Engine, EngineError, ModelSource, Plan, Tensor,
+    check_names, fp16, int8, octaves, pool, transpose, Engine, EngineError, ModelSource, Plan,
+    Tensor,
 };
 use crate::engine::manifest::Precision;
 
@@ -68,20 +69,14 @@ impl Engine for TractEngine {
         shapes: &[(&str, Vec<usize>)],
         outputs: &[&str],
     ) -> Result<Arc<dyn Plan>, EngineError> {
-        let (runnable, inputs, order) = guarded(model.path, || {
-            let (typed, inputs, order) = optimized(model, shapes, outputs)?;
-            let runnable = typed
-                .into_runnable()
-                .map_err(|e| load_error(model.path, e))?;
-            Ok((runnable, inputs, order))
+        let plan = guarded(model.path, || {
+            TractPlan::new(
+                model.path,
+                optimized(model, shapes, outputs)?,
+                &self.executor,
+            )
         })?;
-        Ok(Arc::new(TractPlan {
-            path: model.path.to_owned(),
-            inputs,
-            order,
-            runnable,
-            executor: self.executor.clone(),
-        }))
+        Ok(Arc::new(plan))
     }
 }
 
@@ -96,17 +91,11 @@ impl TractEngine {
     ) -> Result<Vec<(String, f64)>, EngineError> {
         let shapes: Vec<(&str, Vec<usize>)> =
             inputs.iter().map(|(n, t)| (*n, t.shape.clone())).collect();
-        let (typed, names, _) = optimized(model, &shapes, outputs)?;
-        let runnable = typed
-            .into_runnable()
-            .map_err(|e| load_error(model.path, e))?;
-        let plan = TractPlan {
-            path: model.path.to_owned(),
-            inputs: names,
-            order: Vec::new(),
-            runnable,
-            executor: self.executor.clone(),
-        };
+        let plan = TractPlan::new(
+            model.path,
+            optimized(model, &shapes, outputs)?,
+            &self.executor,
+        )?;
         let run = |e: TractError| run_error(model.path, e);
         let mut times: std::collections::HashMap<String, f64> = Default::default();
         for pass in 0..2 {
@@ -190,12 +179,13 @@ fn load_error(path: &Path, e: TractError) -> EngineError {
 }
 
 /// The graph optimised for `shapes`, its input names in graph order, and where each
-/// requested output sits among the graph's outputs.
+/// requested output sits among the graph's outputs; `transposed` when it runs on tall
+/// inputs with their image axes swapped (see [`transpose`]).
 fn optimized(
     model: ModelSource<'_>,
     shapes: &[(&str, Vec<usize>)],
     outputs: &[&str],
-) -> Result<(TypedModel, Vec<String>, Vec<usize>), EngineError> {
+) -> Result<Optimized, EngineError> {
     let load = |e: TractError| load_error(model.path, e);
     let onnx = tract_onnx::onnx();
     let mut proto = onnx
@@ -243,6 +233,20 @@ fn optimized(
         "{}: {n} average pools run as depthwise convolutions",
         model.path.display()
     );
+    let transposed = transpose::tall(shapes)
+        && match transpose::axes_swapped(&proto) {
+            Ok(swapped) => {
+                proto = swapped;
+                true
+            }
+            Err(why) => {
+                log::debug!(
+                    "{}: tall inputs run as they are: {why}",
+                    model.path.display()
+                );
+                false
+            }
+        };
     let mut graph = onnx.model_for_proto_model(&proto).map_err(load)?;
     let names = input_names(&graph).map_err(load)?;
     let wanted: Vec<&str> = shapes.iter().map(|(n, _)| *n).collect();
@@ -253,6 +257,11 @@ fn optimized(
             .find(|(n, _)| n == name)
             .expect("names checked")
             .1;
+        let shape = if transposed {
+            transpose::swapped_shape(shape)
+        } else {
+            shape.clone()
+        };
         graph
             .set_input_fact(ix, f32::fact(shape).into())
             .map_err(load)?;
@@ -269,7 +278,19 @@ fn optimized(
         })
         .collect();
     let typed = graph.into_optimized().map_err(load)?;
-    Ok((typed, names, order))
+    Ok(Optimized {
+        typed,
+        inputs: names,
+        order,
+        transposed,
+    })
+}
+
+struct Optimized {
+    typed: TypedModel,
+    inputs: Vec<String>,
+    order: Vec<usize>,
+    transposed: bool,
 }
 
 fn input_names(graph: &InferenceModel) -> TractResult<Vec<String>> {
@@ -296,11 +317,28 @@ struct TractPlan {
     path: PathBuf,
     inputs: Vec<String>,
     order: Vec<usize>,
+    /// Inputs and outputs have their image axes swapped on the way in and out.
+    transposed: bool,
     runnable: Arc<TypedRunnableModel>,
     executor: Executor,
 }
 
 impl TractPlan {
+    fn new(path: &Path, optimized: Optimized, executor: &Executor) -> Result<Self, EngineError> {
+        let runnable = optimized
+            .typed
+            .into_runnable()
+            .map_err(|e| load_error(path, e))?;
+        Ok(TractPlan {
+            path: path.to_owned(),
+            inputs: optimized.inputs,
+            order: optimized.order,
+            transposed: optimized.transposed,
+            runnable,
+            executor: executor.clone(),
+        })
+    }
+
     fn values(&self, inputs: &[(&str, &Tensor)]) -> Result<TVec<TValue>, EngineError> {
         let run = |e: TractError| run_error(&self.path, e);
         let mut values = TVec::new();
@@ -309,8 +347,13 @@ impl TractPlan {
                 .iter()
                 .find(|(n, _)| n == name)
                 .ok_or_else(|| run(TractError::msg(format!("input {name:?} was not given"))))?;
-            let tensor = tract_onnx::prelude::Tensor::from_shape(&t.shape, &t.data).map_err(run)?;
-            values.push(tensor.into_tvalue());
+            let tensor = if self.transposed {
+                let (shape, data) = transpose::image_axes_swapped(&t.shape, &t.data);
+                tract_onnx::prelude::Tensor::from_shape(&shape, &data)
+            } else {
+                tract_onnx::prelude::Tensor::from_shape(&t.shape, &t.data)
+            };
+            values.push(tensor.map_err(run)?.into_tvalue());
         }
         Ok(values)
     }
@@ -325,12 +368,16 @@ impl Plan for TractPlan {
         self.order
             .iter()
             .map(|&ix| {
-                let out = &outputs[ix];
-                let view = out.to_plain_array_view::<f32>().map_err(run)?;
-                Ok(Tensor::new(
-                    out.shape().to_vec(),
-                    view.iter().copied().collect(),
-                ))
+                let view = outputs[ix].to_plain_array_view::<f32>().map_err(run)?;
+                let data = view
+                    .as_slice()
+                    .map_or_else(|| view.iter().copied().collect(), <[f32]>::to_vec);
+                let (shape, data) = if self.transposed {
+                    transpose::image_axes_swapped(view.shape(), &data)
+                } else {
+                    (view.shape().to_vec(), data)
+                };
+                Ok(Tensor::new(shape, data))
             })
             .collect()
     }
@@ -341,5 +388,108 @@ fn run_error(path: &Path, e: TractError) -> EngineError {
         engine: NAME,
         path: path.to_owned(),
         message: format!("{e:#}"),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The graph's outputs as tract computes them with none of the load-time rewrites.
+    fn untouched(
+        bytes: &[u8],
+        shapes: &[(&str, Vec<usize>)],
+        inputs: &[Vec<f32>],
+    ) -> Vec<Vec<f32>> {
+        let mut graph = tract_onnx::onnx().model_for_read(&mut &*bytes).unwrap();
+        for (ix, (_, shape)) in shapes.iter().enumerate() {
+            graph.set_input_fact(ix, f32::fact(shape).into()).unwrap();
+        }
+        let plan = graph.into_optimized().unwrap().into_runnable().unwrap();
+        let values = shapes
+            .iter()
+            .zip(inputs)
+            .map(|((_, s), x)| {
+                tract_onnx::prelude::Tensor::from_shape(s, x)
+                    .unwrap()
+                    .into()
+            })
+            .collect();
+        plan.run(values)
+            .unwrap()
+            .iter()
+            .map(|t| {
+                t.to_plain_array_view::<f32>()
+                    .unwrap()
+                    .iter()
+                    .copied()
+                    .collect()
+            })
+            .collect()
+    }
+
+    #[test]
+    fn tall_inputs_run_swapped_and_give_what_the_untouched_graph_gives() {
+        let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+        let cases: [(&str, &[(&str, usize)]); 2] = [
+            ("models/depth/tiefenrausch-fp32.onnx", &[("image", 3)]),
+            (
+                "models/fixtures/reshade-fixture-fp32-encoder.onnx",
+                &[("image", 3), ("disparity", 1)],
+            ),
+        ];
+        for (file, inputs) in cases {
+            let path = root.join(file);
+            let bytes = std::fs::read(&path).unwrap();
+            let shapes: Vec<(&str, Vec<usize>)> = inputs
+                .iter()
+                .map(|&(n, c)| (n, vec![1, c, 64, 32]))
+                .collect();
+            let data: Vec<Vec<f32>> = shapes
+                .iter()
+                .map(|(_, s)| {
+                    let n = s.iter().product::<usize>();
+                    (0..n)
+                        .map(|i| 0.5 + 0.4 * (i as f32 * 0.013).sin())
+                        .collect()
+                })
+                .collect();
+            let graph = tract_onnx::onnx().model_for_read(&mut &*bytes).unwrap();
+            let outputs = output_names(&graph).unwrap();
+            let outputs: Vec<&str> = outputs.iter().map(String::as_str).collect();
+            let source = ModelSource {
+                path: &path,
+                bytes: &bytes,
+                precision: Precision::Fp32,
+            };
+            assert!(
+                optimized(source, &shapes, &outputs).unwrap().transposed,
+                "{file}"
+            );
+            let plan = TractEngine::new(2).plan(source, &shapes, &outputs).unwrap();
+            let feed: Vec<Tensor> = shapes
+                .iter()
+                .zip(&data)
+                .map(|((_, s), x)| Tensor::new(s.clone(), x.clone()))
+                .collect();
+            let named: Vec<(&str, &Tensor)> = shapes.iter().map(|(n, _)| *n).zip(&feed).collect();
+            let got = plan.run(&named).unwrap();
+            let want = untouched(&bytes, &shapes, &data);
+            assert_eq!(got.len(), want.len());
+            for (g, w) in got.iter().zip(&want) {
+                assert_eq!(g.data.len(), w.len());
+                let scale = w.iter().fold(0f32, |m, v| m.max(v.abs())).max(1e-3);
+                let worst = g
+                    .data
+                    .iter()
+                    .zip(w)
+                    .map(|(a, b)| (a - b).abs())
+                    .fold(0f32, f32::max);
+                assert!(
+                    worst <= 1e-4 * scale,
+                    "{file}: off by {worst} (scale {scale})"
+                );
+            }
+        }
     }
 }

@@ -68,6 +68,14 @@ pub struct SrgbImage {
     data: Vec<f32>,
 }
 
+/// An encoded value in 0..=1 as the nearest 8-bit level (clamped; NaN as 0).
+#[inline]
+pub fn byte(v: f32) -> u8 {
+    // floor(y + 0.5) in f64 is exactly f32::round for 0 <= y <= 255 (the sum needs at
+    // most 33 bits), and unlike round() it compiles to vector code.
+    (f64::from(v.clamp(0.0, 1.0) * 255.0) + 0.5) as u8
+}
+
 impl SrgbImage {
     pub fn new(width: u32, height: u32) -> Self {
         Self {
@@ -98,13 +106,7 @@ impl SrgbImage {
     }
 
     pub fn to_rgb8(&self) -> RgbImage {
-        let bytes = self
-            .data
-            .iter()
-            // floor(y + 0.5) in f64 is exactly f32::round for 0 <= y <= 255 (the sum
-            // needs at most 33 bits), and unlike round() it compiles to vector code.
-            .map(|&v| (f64::from(v.clamp(0.0, 1.0) * 255.0) + 0.5) as u8)
-            .collect();
+        let bytes = self.data.iter().map(|&v| byte(v)).collect();
         RgbImage::from_raw(self.width, self.height, bytes).expect("buffer matches size")
     }
 

@@ -564,7 +564,7 @@ pub fn render_views(
         let relocated = t.time("relocate", || {
             crate::parallel::map(count, threads, |i| {
                 let colours = colours.get(i).unwrap_or(&fitted.image);
-                let view = relocation.render(colours, &cameras[first + i])?.to_rgb8();
+                let view = relocation.render_rgb8(colours, &cameras[first + i])?;
                 progress.inc(1);
                 Ok::<_, RelocateError>(view)
             })

@@ -18,6 +18,7 @@ use crate::io::photo::SrgbImage;
 use crate::relocate::ldi::{view_reach, Border, LdiConfig, LdiRelocator};
 use crate::relocate::map::ViewMap;
 use crate::views::{Intrinsics, ViewCamera};
+use image::RgbImage;
 
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum RelocateError {
@@ -81,6 +82,15 @@ pub trait PreparedRelocation: Sync {
     /// The view seen by `view`, with `colours` (the view's reshaded image, in the
     /// source camera's frame, at the prepared size).
     fn render(&self, colours: &SrgbImage, view: &ViewCamera) -> Result<SrgbImage, RelocateError>;
+
+    /// [`PreparedRelocation::render`] rounded to 8 bits, as the panel shows it.
+    fn render_rgb8(
+        &self,
+        colours: &SrgbImage,
+        view: &ViewCamera,
+    ) -> Result<RgbImage, RelocateError> {
+        Ok(self.render(colours, view)?.to_rgb8())
+    }
 
     /// The view as a lookup into the colours ([`ViewMap`]), where the preparation can
     /// give one: where every view pixel's colours come from depends on the geometry

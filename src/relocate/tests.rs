@@ -232,7 +232,7 @@ fn a_live_relocator_never_narrows_its_crop_framing() {
 }
 
 #[test]
-fn the_plain_render_is_the_detailed_render_s_image() {
+fn the_plain_and_8_bit_renders_are_the_detailed_render_s_image() {
     let (frame, depth) = textured_square();
     let colours = SrgbImage::from_rgb8(&frame);
     for border in [Border::Crop, Border::Extend, Border::Inpaint] {
@@ -245,6 +245,8 @@ fn the_plain_render_is_the_detailed_render_s_image() {
             let plain = ldi.render(&colours, &cam).unwrap();
             let detailed = ldi.render_detailed(&colours, &cam).unwrap();
             assert_eq!(plain.data(), detailed.image.data(), "{border:?}");
+            let bytes = ldi.render_rgb8(&colours, &cam).unwrap();
+            assert_eq!(bytes, plain.to_rgb8(), "{border:?}: the 8-bit render");
         }
     }
 }

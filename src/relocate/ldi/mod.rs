@@ -20,10 +20,11 @@ mod mesh;
 mod render;
 
 use crate::depth::DepthMap;
-use crate::io::photo::SrgbImage;
+use crate::io::photo::{byte, SrgbImage};
 use crate::relocate::map::{ViewMap, NO_SOURCE};
 use crate::relocate::{check_sizes, PreparedRelocation, RelocateError, Relocator};
 use crate::views::{Intrinsics, ViewCamera};
+use image::RgbImage;
 
 use mesh::Side;
 use render::Origin;
@@ -311,6 +312,28 @@ impl Ldi {
         Ok(self.resolve(&frame, colours))
     }
 
+    /// [`Ldi::render`] rounded to 8 bits, without the float image in between.
+    pub fn render_rgb8(
+        &self,
+        colours: &SrgbImage,
+        view: &ViewCamera,
+    ) -> Result<RgbImage, RelocateError> {
+        if self.border == Border::Inpaint {
+            return Ok(self.render_detailed(colours, view)?.image.to_rgb8());
+        }
+        self.check_colours(colours)?;
+        let frame = self.rasterise(view, false);
+        let (ow, oh) = (frame.width / frame.factor, frame.height / frame.factor);
+        let mut bytes = vec![0u8; ow * oh * 3];
+        let rows = bytes.chunks_exact_mut(ow * 3);
+        self.resolve_rows(&frame, colours, rows, |out, rgb| {
+            for (b, &v) in out.iter_mut().zip(rgb) {
+                *b = byte(v);
+            }
+        });
+        Ok(RgbImage::from_raw(ow as u32, oh as u32, bytes).expect("buffer matches size"))
+    }
+
     /// The view with the fractions of each pixel that show original pixels and holes
     /// (the evaluation's regions, and where `--border inpaint` synthesises).
     pub fn render_detailed(
@@ -457,16 +480,35 @@ impl Ldi {
     /// Averages each output pixel's subsamples, looking up every sample's colour, a
     /// row of subsamples at a time.
     fn resolve(&self, frame: &render::Frame, colours: &SrgbImage) -> SrgbImage {
+        let (ow, oh) = (frame.width / frame.factor, frame.height / frame.factor);
+        let mut rgb = vec![0.0f32; ow * oh * 3];
+        let rows = rgb.chunks_exact_mut(ow * 3);
+        self.resolve_rows(frame, colours, rows, |out, row| out.copy_from_slice(row));
+        let image =
+            image::Rgb32FImage::from_raw(ow as u32, oh as u32, rgb).expect("buffer matches size");
+        SrgbImage::from_rgb32f(image)
+    }
+
+    /// Each output row's colours, the mean of its subsamples', handed to `emit` with
+    /// that row of `rows`.
+    fn resolve_rows<'r, T: 'r>(
+        &self,
+        frame: &render::Frame,
+        colours: &SrgbImage,
+        rows: impl Iterator<Item = &'r mut [T]>,
+        mut emit: impl FnMut(&mut [T], &[f32]),
+    ) {
         let k = frame.factor;
-        let (ow, oh) = (frame.width / k, frame.height / k);
+        let ow = frame.width / k;
         let data = colours.data();
         let front_samples = self.stats.width * self.stats.height;
         let weight = 1.0 / (k * k) as f32;
-        let mut rgb = vec![0.0f32; ow * oh * 3];
-        for (y, out) in rgb.chunks_exact_mut(ow * 3).enumerate() {
+        let mut sums = vec![0.0f32; ow * 3];
+        for (y, out) in rows.enumerate() {
+            sums.fill(0.0);
             for sy in 0..k {
                 let row = &frame.sample[(y * k + sy) * frame.width..][..ow * k];
-                for (px, subsamples) in out.chunks_exact_mut(3).zip(row.chunks_exact(k)) {
+                for (px, subsamples) in sums.chunks_exact_mut(3).zip(row.chunks_exact(k)) {
                     for &s in subsamples {
                         let colour = self.sample_colour(s, data, front_samples);
                         for c in 0..3 {
@@ -475,10 +517,8 @@ impl Ldi {
                     }
                 }
             }
+            emit(out, &sums);
         }
-        let image =
-            image::Rgb32FImage::from_raw(ow as u32, oh as u32, rgb).expect("buffer matches size");
-        SrgbImage::from_rgb32f(image)
     }
 }
 
@@ -683,6 +723,14 @@ impl Relocator for LdiRelocator {
 impl PreparedRelocation for Ldi {
     fn render(&self, colours: &SrgbImage, view: &ViewCamera) -> Result<SrgbImage, RelocateError> {
         Ldi::render(self, colours, view)
+    }
+
+    fn render_rgb8(
+        &self,
+        colours: &SrgbImage,
+        view: &ViewCamera,
+    ) -> Result<RgbImage, RelocateError> {
+        Ldi::render_rgb8(self, colours, view)
     }
 
     fn view_map(&self, view: &ViewCamera) -> Option<ViewMap> {

@@ -46,13 +46,14 @@ pub(super) fn rasterise(
     let projected = project(mesh, centre, k);
     let mut inv_z = vec![0.0f32; w * h];
     let mut sample = vec![EMPTY; w * h];
+    let mut rows = Scanlines::default();
     for (s, quad) in mesh.samples.iter().enumerate() {
         let s = s as u32;
         let [a, b, c, d] = quad.corners.map(|i| projected[i as usize]);
         if outside([a, b, c, d], w as f32, h as f32) {
             continue;
         }
-        if !fill_trapezoid([a, b, c, d], s, w, h, &mut inv_z, &mut sample) {
+        if !fill_trapezoid([a, b, c, d], s, w, h, &mut rows, &mut inv_z, &mut sample) {
             for tri in [[a, b, c], [b, d, c]] {
                 fill_triangle(tri, s, w, h, &mut inv_z, &mut sample);
             }
@@ -166,6 +167,7 @@ fn fill_trapezoid(
     id: u32,
     w: usize,
     h: usize,
+    rows: &mut Scanlines,
     inv_z: &mut [f32],
     sample: &mut [u32],
 ) -> bool {
@@ -184,11 +186,8 @@ fn fill_trapezoid(
     if upper.is_none() && lower.is_none() {
         return true;
     }
-    let (top, bottom) = (a[1], c[1]);
-    let per_pixel = 1.0 / (bottom - top);
-    let rows = first_centre(top - 0.5 - EPS, h)..past_last_centre(bottom - 0.5 + EPS, h);
-    for y in rows {
-        let t = ((y as f64 + 0.5 - top) * per_pixel).clamp(0.0, 1.0);
+    let (first_row, fractions) = rows.between(a[1], c[1], h);
+    for (y, &t) in (first_row..).zip(fractions) {
         let along = |p: [f64; 3], q: [f64; 3]| [p[0] + t * (q[0] - p[0]), p[2] + t * (q[2] - p[2])];
         let (left, right) = (along(a, c), along(b, d));
         let xs = first_centre(left[0] - 0.5 - EPS, w);
@@ -220,6 +219,33 @@ fn fill_trapezoid(
         }
     }
     true
+}
+
+/// The pixel rows whose centres lie between two screen heights, each with how far down
+/// it lies (0 at the top, 1 at the bottom). A sideways camera keeps every row of mesh
+/// corners on one screen row, so all the quads of a photo row share their scanlines,
+/// and the quads come in row order: worked out once per photo row, not once per quad.
+#[derive(Default)]
+struct Scanlines {
+    top: f64,
+    bottom: f64,
+    first: usize,
+    fractions: Vec<f64>,
+}
+
+impl Scanlines {
+    fn between(&mut self, top: f64, bottom: f64, h: usize) -> (usize, &[f64]) {
+        if (top, bottom) != (self.top, self.bottom) || self.fractions.is_empty() {
+            let per_pixel = 1.0 / (bottom - top);
+            let rows = first_centre(top - 0.5 - EPS, h)..past_last_centre(bottom - 0.5 + EPS, h);
+            self.first = rows.start;
+            self.fractions.clear();
+            self.fractions
+                .extend(rows.map(|y| ((y as f64 + 0.5 - top) * per_pixel).clamp(0.0, 1.0)));
+            (self.top, self.bottom) = (top, bottom);
+        }
+        (self.first, &self.fractions)
+    }
 }
 
 /// How far past an edge a pixel centre still counts as on it, in pixels: rounding
@@ -300,10 +326,11 @@ fn fill_pass(sample: &mut [u32], inv_z: &mut [f32], w: usize, h: usize) {
 
 #[cfg(test)]
 mod tests {
-    use super::{fill_trapezoid, fill_triangle, outside, EMPTY};
+    use super::{fill_trapezoid, fill_triangle, outside, Scanlines, EMPTY};
 
-    /// Draws the quad both ways into fresh 40×30 buffers.
-    fn both_ways(q: [[f32; 3]; 4]) -> [(Vec<f32>, Vec<u32>); 2] {
+    /// Draws the quad both ways into fresh 40×30 buffers, the trapezoid with the
+    /// scanlines of the quads drawn before.
+    fn both_ways(q: [[f32; 3]; 4], rows: &mut Scanlines) -> [(Vec<f32>, Vec<u32>); 2] {
         let (w, h) = (40, 30);
         let fresh = || (vec![0.0f32; w * h], vec![EMPTY; w * h]);
         let (mut trapezoid, mut triangles) = (fresh(), fresh());
@@ -312,6 +339,7 @@ mod tests {
             7,
             w,
             h,
+            rows,
             &mut trapezoid.0,
             &mut trapezoid.1
         ));
@@ -332,6 +360,8 @@ mod tests {
             lo + (hi - lo) * (state >> 40) as f32 / (1u64 << 24) as f32
         };
         let mut covered = 0;
+        let mut rows = Scanlines::default();
+        let (mut top, mut bottom) = (0.0, 0.0);
         for case in 0..500 {
             // Half the cases on the subsample lattice, where centres fall exactly on the
             // diagonal and the edges of neighbouring quads.
@@ -343,7 +373,10 @@ mod tests {
                     v
                 }
             };
-            let (top, bottom) = (at(-3.0, 20.0), at(1.0, 12.0));
+            // Three quads in a row share their top and bottom, as a photo row's do.
+            if case % 3 == 0 {
+                (top, bottom) = (at(-3.0, 20.0), at(1.0, 12.0));
+            }
             let (ax, cx) = (at(-4.0, 36.0), at(-4.0, 36.0));
             let (bx, dx) = (ax + at(0.0, 6.0), cx + at(0.0, 6.0));
             let mut z = || uniform(0.2, 1.0);
@@ -353,7 +386,7 @@ mod tests {
                 [cx, top + bottom, z()],
                 [dx, top + bottom, z()],
             ];
-            let [(tz, ts), (rz, rs)] = both_ways(q);
+            let [(tz, ts), (rz, rs)] = both_ways(q, &mut rows);
             assert_eq!(ts, rs, "{q:?}");
             for (i, (t, r)) in tz.iter().zip(&rz).enumerate() {
                 assert!(
@@ -389,7 +422,8 @@ mod tests {
             [5.0, 5.0, 1.0],
         ];
         for q in [slanted, folded, behind] {
-            assert!(!fill_trapezoid(q, 1, w, h, &mut z, &mut s), "{q:?}");
+            let rows = &mut Scanlines::default();
+            assert!(!fill_trapezoid(q, 1, w, h, rows, &mut z, &mut s), "{q:?}");
         }
         assert!(s.iter().all(|&s| s == EMPTY));
     }

@@ -15,7 +15,7 @@
 
 use std::collections::{HashMap, HashSet};
 
-use super::proto::{floats, initializer_index, readers, words};
+use super::proto::{floats, initializer_index, readers, scalar, words};
 use tract_onnx::pb::{self, tensor_proto::DataType};
 
 const FLOAT: i32 = DataType::Float as i32;
@@ -197,7 +197,7 @@ impl Grid {
 /// 1.5 · 2²³: added to a float of magnitude below 2²² and taken away again, it rounds
 /// that float to an integer, half to even (the sum's spacing is 1, and the constant is
 /// even), in two vectorised additions; tract's Round is a scalar loop.
-const ROUNDING_MAGIC: f32 = 12_582_912.0;
+pub(super) const ROUNDING_MAGIC: f32 = 12_582_912.0;
 
 /// Replaces each `QuantizeLinear` whose every reader is a `DequantizeLinear` on the same
 /// scalar grid by the float arithmetic the pair computes,
@@ -246,12 +246,6 @@ pub fn fake_quantize_activations(model: &mut pb::ModelProto) -> Result<usize, St
     for (at, node) in std::mem::take(&mut graph.node).into_iter().enumerate() {
         if let Some((grid, _)) = plans.get(&at) {
             let base = node.output[0].clone();
-            let scalar = |name: String, v: f32| pb::TensorProto {
-                name,
-                data_type: FLOAT,
-                float_data: vec![v],
-                ..Default::default()
-            };
             added.push(scalar(format!("{base}.fq.scale"), grid.scale));
             added.push(scalar(
                 format!("{base}.fq.min"),

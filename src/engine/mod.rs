@@ -15,6 +15,7 @@ mod int8;
 mod octaves;
 mod pool;
 mod proto;
+mod sine;
 mod transpose;
 #[cfg(test)]
 mod test_graphs;

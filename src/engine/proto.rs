@@ -62,3 +62,13 @@ pub(super) fn words<T: Clone>(
         .map(|b| from_le([b[0], b[1], b[2], b[3]]))
         .collect())
 }
+
+/// A float scalar initializer.
+pub(super) fn scalar(name: String, value: f32) -> pb::TensorProto {
+    pb::TensorProto {
+        name,
+        data_type: FLOAT,
+        float_data: vec![value],
+        ..Default::default()
+    }
+}

@@ -9,8 +9,8 @@ use tract_onnx::prelude::*;
 use tract_onnx::tract_core::plan::SimpleState;
 
 use super::{
-    check_names, fp16, int8, octaves, pool, transpose, Engine, EngineError, ModelSource, Plan,
-    Tensor,
+    check_names, fp16, int8, octaves, pool, sine, transpose, Engine, EngineError, ModelSource,
+    Plan, Tensor,
 };
 use crate::engine::manifest::Precision;
 
@@ -226,6 +226,11 @@ fn optimized(
     let n = octaves::double_angle_octaves(&mut proto);
     log::debug!(
         "{}: {n} frequency-encoding octaves computed from the octave below",
+        model.path.display()
+    );
+    let n = sine::polynomial_sines(&mut proto);
+    log::debug!(
+        "{}: {n} Sin/Cos nodes evaluated as polynomials",
         model.path.display()
     );
     let n = pool::average_pools_as_depthwise(&mut proto);

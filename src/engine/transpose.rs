@@ -19,7 +19,7 @@ use super::proto::{initializer_index, readers};
 
 /// Element-wise operations: the same whichever axis is which, provided that their
 /// constant operands are the same along both image axes (see [`axis_free`]).
-const ELEMENT_WISE: [&str; 21] = [
+const ELEMENT_WISE: [&str; 22] = [
     "Add",
     "Sub",
     "Mul",
@@ -41,6 +41,7 @@ const ELEMENT_WISE: [&str; 21] = [
     "QuantizeLinear",
     "DequantizeLinear",
     "Max",
+    "Min",
 ];
 
 /// Whether inputs of these shapes run transposed: every input an image batch (rank 4)

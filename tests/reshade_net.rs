@@ -146,28 +146,26 @@ fn batching_views_gives_the_same_images() {
 fn key_views_are_exact_and_views_between_them_blend() {
     let (image, _) = scene(64, 32);
     let centres: Vec<[f64; 3]> = (0..5).map(|i| [-0.2 + 0.1 * i as f64, 0.0, 0.0]).collect();
-    let plain = reshade(&split(1, NetOptions::default()), &image, &centres);
-    let keyed = reshade(
-        &split(
-            1,
-            NetOptions {
-                key_views: Some(3),
-                ..Default::default()
-            },
-        ),
-        &image,
-        &centres,
-    );
-    for i in [0, 2, 4] {
-        assert_eq!(plain[i], keyed[i], "key view {i}");
-    }
-    // View 1 lies halfway between keys 0 and 2: its residual is their mean.
-    let (a, b) = (&plain[0], &plain[2]);
-    for (k, v) in keyed[1].data().iter().enumerate() {
-        let (x, y, p) = (a.data()[k], b.data()[k], image.data()[k]);
-        let unclamped = p + 0.5 * ((x - p) + (y - p));
-        if (0.01..0.99).contains(&unclamped) {
-            assert!((v - unclamped).abs() < 1e-5);
+    // At full working size, and at half, where the key views' residuals are upsampled.
+    for scale in [1.0, 0.5] {
+        let options = |key_views| NetOptions {
+            key_views,
+            scale,
+            ..Default::default()
+        };
+        let plain = reshade(&split(1, options(None)), &image, &centres);
+        let keyed = reshade(&split(1, options(Some(3))), &image, &centres);
+        for i in [0, 2, 4] {
+            assert_eq!(plain[i], keyed[i], "scale {scale}: key view {i}");
+        }
+        // View 1 lies halfway between keys 0 and 2: its residual is their mean.
+        let (a, b) = (&plain[0], &plain[2]);
+        for (k, v) in keyed[1].data().iter().enumerate() {
+            let (x, y, p) = (a.data()[k], b.data()[k], image.data()[k]);
+            let unclamped = p + 0.5 * ((x - p) + (y - p));
+            if (0.01..0.99).contains(&unclamped) {
+                assert!((v - unclamped).abs() < 1e-5, "scale {scale}");
+            }
         }
     }
 }

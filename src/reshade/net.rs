@@ -504,20 +504,34 @@ impl NetPhoto<'_> {
 
     /// The full-resolution photo plus a working-resolution residual, clamped to [0, 1].
     fn compose(&self, residual: &[f32]) -> SrgbImage {
+        self.compose_upsampled(&self.upsampled(residual), None)
+    }
+
+    /// A working-resolution residual at the photo's size.
+    fn upsampled(&self, residual: &[f32]) -> Vec<f32> {
         let (w, h) = self.size;
         let (ww, wh) = self.work_size;
-        let up;
-        let residual = if (ww, wh) == (w, h) {
-            residual
+        if (ww, wh) == (w, h) {
+            residual.to_vec()
         } else {
-            up = resample::resize(residual, ww, wh, w, h);
-            &up
-        };
+            resample::resize(residual, ww, wh, w, h)
+        }
+    }
+
+    /// The photo plus a residual at its size, or plus the blend `a + (b − a)·t` of two
+    /// (upsampling is linear, so blending after it is blending before), clamped to [0, 1].
+    fn compose_upsampled(&self, a: &[f32], blend: Option<(&[f32], f32)>) -> SrgbImage {
+        let (w, h) = self.size;
         let plane = w * h;
         let mut rgb = vec![0.0f32; 3 * plane];
         for (i, px) in rgb.chunks_exact_mut(3).enumerate() {
             for (c, v) in px.iter_mut().enumerate() {
-                *v = (self.full[c * plane + i] + residual[c * plane + i]).clamp(0.0, 1.0);
+                let j = c * plane + i;
+                let residual = match blend {
+                    Some((b, t)) => a[j] + (b[j] - a[j]) * t,
+                    None => a[j],
+                };
+                *v = (self.full[j] + residual).clamp(0.0, 1.0);
             }
         }
         let buffer =
@@ -576,7 +590,8 @@ pub struct ViewStream<'s> {
     sources: Vec<keys::Source>,
     /// Then views are decoded a few at a time; otherwise all key views at the first pull.
     every_view_is_a_key: bool,
-    /// With interpolated views: the key views and their residuals, in view order.
+    /// With interpolated views: the key views and their residuals upsampled to the
+    /// photo's size, in view order.
     keys: Option<(Vec<usize>, Vec<Vec<f32>>)>,
     /// Views made but not yet pulled.
     pending: std::collections::VecDeque<SrgbImage>,
@@ -606,7 +621,11 @@ impl ViewStream<'_> {
             let centres: Vec<[f64; 3]> = key_views.iter().map(|&k| self.centres[k]).collect();
             let residuals = self.photo.residuals(&centres)?;
             self.photo.report_clamped(key_views.len());
-            self.keys = Some((key_views, residuals));
+            let photo = self.photo;
+            let upsampled = crate::parallel::map(residuals.len(), crate::parallel::cores(), |k| {
+                Ok::<_, NetError>(photo.upsampled(&residuals[k]))
+            })?;
+            self.keys = Some((key_views, upsampled));
         }
         let cores = crate::parallel::cores();
         let first = self.next;
@@ -630,12 +649,10 @@ impl ViewStream<'_> {
                 .expect("a key view")
         };
         match self.sources[v] {
-            keys::Source::Key => self.photo.compose(&residuals[slot(v)]),
-            keys::Source::Blend { a, b, t } => {
-                let (ra, rb) = (&residuals[slot(a)], &residuals[slot(b)]);
-                let blend: Vec<f32> = ra.iter().zip(rb).map(|(x, y)| x + (y - x) * t).collect();
-                self.photo.compose(&blend)
-            }
+            keys::Source::Key => self.photo.compose_upsampled(&residuals[slot(v)], None),
+            keys::Source::Blend { a, b, t } => self
+                .photo
+                .compose_upsampled(&residuals[slot(a)], Some((&residuals[slot(b)], t))),
         }
     }
 }

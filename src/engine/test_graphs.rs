@@ -43,22 +43,42 @@ pub(super) fn model(initializer: Vec<pb::TensorProto>, node: Vec<pb::NodeProto>)
 
 /// A float vector of `len` elements.
 pub(super) fn value_info(name: &str, len: i64) -> pb::ValueInfoProto {
+    shaped_value_info(name, &[len])
+}
+
+/// A float tensor of shape `dims`.
+pub(super) fn shaped_value_info(name: &str, dims: &[i64]) -> pb::ValueInfoProto {
+    let dim = |v: i64| pb::tensor_shape_proto::Dimension {
+        value: Some(pb::tensor_shape_proto::dimension::Value::DimValue(v)),
+        ..Default::default()
+    };
     pb::ValueInfoProto {
         name: name.into(),
         r#type: Some(pb::TypeProto {
             value: Some(pb::type_proto::Value::TensorType(pb::type_proto::Tensor {
                 elem_type: FLOAT,
                 shape: Some(pb::TensorShapeProto {
-                    dim: vec![pb::tensor_shape_proto::Dimension {
-                        value: Some(pb::tensor_shape_proto::dimension::Value::DimValue(len)),
-                        ..Default::default()
-                    }],
+                    dim: dims.iter().map(|&d| dim(d)).collect(),
                 }),
             })),
             ..Default::default()
         }),
         ..Default::default()
     }
+}
+
+/// A run's outputs as flat float vectors.
+pub(super) fn flat_outputs(outputs: &[tract_onnx::prelude::TValue]) -> Vec<Vec<f32>> {
+    outputs
+        .iter()
+        .map(|t| {
+            t.to_plain_array_view::<f32>()
+                .unwrap()
+                .iter()
+                .copied()
+                .collect()
+        })
+        .collect()
 }
 
 pub(super) fn run(model: &pb::ModelProto, x: &[f32]) -> Vec<Vec<f32>> {
@@ -71,15 +91,5 @@ pub(super) fn run(model: &pb::ModelProto, x: &[f32]) -> Vec<Vec<f32>> {
         .into_runnable()
         .unwrap();
     let input = tract_ndarray::Array1::from_vec(x.to_vec()).into_tensor();
-    plan.run(tvec!(input.into()))
-        .unwrap()
-        .iter()
-        .map(|t| {
-            t.to_plain_array_view::<f32>()
-                .unwrap()
-                .iter()
-                .copied()
-                .collect()
-        })
-        .collect()
+    flat_outputs(&plan.run(tvec!(input.into())).unwrap())
 }

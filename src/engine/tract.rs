@@ -420,17 +420,7 @@ mod tests {
                     .into()
             })
             .collect();
-        plan.run(values)
-            .unwrap()
-            .iter()
-            .map(|t| {
-                t.to_plain_array_view::<f32>()
-                    .unwrap()
-                    .iter()
-                    .copied()
-                    .collect()
-            })
-            .collect()
+        crate::engine::test_graphs::flat_outputs(&plan.run(values).unwrap())
     }
 
     #[test]

@@ -279,7 +279,7 @@ fn swap_declared_shape(info: &mut pb::ValueInfoProto) {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::engine::test_graphs::tensor;
+    use crate::engine::test_graphs::{shaped_value_info, tensor};
     use tract_onnx::pb::attribute_proto::AttributeType;
     use tract_onnx::prelude::*;
 
@@ -327,23 +327,8 @@ mod tests {
     }
 
     fn image(name: &str) -> pb::ValueInfoProto {
-        let dim = |v: i64| pb::tensor_shape_proto::Dimension {
-            value: Some(pb::tensor_shape_proto::dimension::Value::DimValue(v)),
-            ..Default::default()
-        };
-        pb::ValueInfoProto {
-            name: name.into(),
-            r#type: Some(pb::TypeProto {
-                value: Some(pb::type_proto::Value::TensorType(pb::type_proto::Tensor {
-                    elem_type: FLOAT,
-                    shape: Some(pb::TensorShapeProto {
-                        dim: TALL.iter().map(|&d| dim(d as i64)).collect(),
-                    }),
-                })),
-                ..Default::default()
-            }),
-            ..Default::default()
-        }
+        let dims: Vec<i64> = TALL.iter().map(|&d| d as i64).collect();
+        shaped_value_info(name, &dims)
     }
 
     /// Every operation the rewrite swaps, each with axes that differ: a strided, unevenly

@@ -77,8 +77,32 @@ pub fn image_axes_swapped(shape: &[usize], data: &[f32]) -> (Vec<usize>, Vec<f32
 /// The graph with its two image axes swapped, or why it cannot be: the name of the first
 /// operation that does not treat the axes alike.
 pub fn axes_swapped(model: &pb::ModelProto) -> Result<pb::ModelProto, String> {
+    let graph = model.graph.as_ref().ok_or("the model has no graph")?;
+    // Checked on the model as it is, copied only once it qualifies (a graph that does
+    // not, such as the reshading decoder, is refused on every plan).
+    let (swapped_weights, resize_constants) = swapped_tensors(graph)?;
     let mut model = model.clone();
-    let graph = model.graph.as_mut().ok_or("the model has no graph")?;
+    let graph = model.graph.as_mut().expect("checked above");
+    for at in swapped_weights {
+        swap_last_axes_of(&mut graph.initializer[at])?;
+    }
+    for at in resize_constants {
+        swap_resize_constant(&mut graph.initializer[at])?;
+    }
+    for node in &mut graph.node {
+        if matches!(node.op_type.as_str(), "Conv" | "AveragePool" | "MaxPool") {
+            node.attribute.iter_mut().for_each(swap_attribute);
+        }
+    }
+    for info in graph.input.iter_mut().chain(graph.output.iter_mut()) {
+        swap_declared_shape(info);
+    }
+    Ok(model)
+}
+
+/// The initializers to swap, by position: the convolutions' kernels and the resizes'
+/// scales, sizes and regions; an error naming what does not treat the axes alike.
+fn swapped_tensors(graph: &pb::GraphProto) -> Result<(BTreeSet<usize>, BTreeSet<usize>), String> {
     let initializers = initializer_index(graph);
     let constants: HashMap<String, Vec<i64>> = graph
         .node
@@ -154,21 +178,7 @@ pub fn axes_swapped(model: &pb::ModelProto) -> Result<pb::ModelProto, String> {
             ));
         }
     }
-    for at in swapped_weights {
-        swap_last_axes_of(&mut graph.initializer[at])?;
-    }
-    for at in resize_constants {
-        swap_resize_constant(&mut graph.initializer[at])?;
-    }
-    for node in &mut graph.node {
-        if matches!(node.op_type.as_str(), "Conv" | "AveragePool" | "MaxPool") {
-            node.attribute.iter_mut().for_each(swap_attribute);
-        }
-    }
-    for info in graph.input.iter_mut().chain(graph.output.iter_mut()) {
-        swap_declared_shape(info);
-    }
-    Ok(model)
+    Ok((swapped_weights, resize_constants))
 }
 
 /// Whether a constant of these dimensions broadcasts the same value along both image

@@ -374,13 +374,14 @@ impl Plan for TractPlan {
             .iter()
             .map(|&ix| {
                 let view = outputs[ix].to_plain_array_view::<f32>().map_err(run)?;
-                let data = view
-                    .as_slice()
-                    .map_or_else(|| view.iter().copied().collect(), <[f32]>::to_vec);
+                let data: std::borrow::Cow<[f32]> = match view.as_slice() {
+                    Some(data) => data.into(),
+                    None => view.iter().copied().collect::<Vec<_>>().into(),
+                };
                 let (shape, data) = if self.transposed {
                     transpose::image_axes_swapped(view.shape(), &data)
                 } else {
-                    (view.shape().to_vec(), data)
+                    (view.shape().to_vec(), data.into_owned())
                 };
                 Ok(Tensor::new(shape, data))
             })

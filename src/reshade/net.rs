@@ -16,6 +16,7 @@ mod models;
 use models::find_models;
 pub use models::{is_residual, manifests_where};
 
+use std::borrow::Cow;
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicUsize, Ordering};
@@ -507,15 +508,28 @@ impl NetPhoto<'_> {
         self.compose_upsampled(&self.upsampled(residual), None)
     }
 
-    /// A working-resolution residual at the photo's size.
-    fn upsampled(&self, residual: &[f32]) -> Vec<f32> {
+    /// A working-resolution residual at the photo's size (itself where the network ran
+    /// at the photo's size).
+    fn upsampled<'r>(&self, residual: &'r [f32]) -> Cow<'r, [f32]> {
         let (w, h) = self.size;
         let (ww, wh) = self.work_size;
         if (ww, wh) == (w, h) {
-            residual.to_vec()
+            residual.into()
         } else {
-            resample::resize(residual, ww, wh, w, h)
+            resample::resize(residual, ww, wh, w, h).into()
         }
+    }
+
+    /// Residuals at the photo's size, upsampled on every core where they are not.
+    fn all_upsampled(&self, residuals: Vec<Vec<f32>>) -> Vec<Vec<f32>> {
+        if self.work_size == self.size {
+            return residuals;
+        }
+        let cores = crate::parallel::cores();
+        crate::parallel::map(residuals.len(), cores, |k| {
+            Ok::<_, std::convert::Infallible>(self.upsampled(&residuals[k]).into_owned())
+        })
+        .unwrap_or_else(|never| match never {})
     }
 
     /// The photo plus a residual at its size, or plus the blend `a + (b − a)·t` of two
@@ -621,11 +635,7 @@ impl ViewStream<'_> {
             let centres: Vec<[f64; 3]> = key_views.iter().map(|&k| self.centres[k]).collect();
             let residuals = self.photo.residuals(&centres)?;
             self.photo.report_clamped(key_views.len());
-            let photo = self.photo;
-            let upsampled = crate::parallel::map(residuals.len(), crate::parallel::cores(), |k| {
-                Ok::<_, NetError>(photo.upsampled(&residuals[k]))
-            })?;
-            self.keys = Some((key_views, upsampled));
+            self.keys = Some((key_views, self.photo.all_upsampled(residuals)));
         }
         let cores = crate::parallel::cores();
         let first = self.next;

@@ -216,3 +216,38 @@ fn manifest_contract_violations_name_the_field() {
         "{err}"
     );
 }
+
+/// Where tract spends the shipped depth network's time, per operator type, at the example
+/// photo's network size (288×384), both precisions, as the runtime loads them (int8
+/// weights folded, rewrites applied). The onnxruntime side of the same comparison is
+/// `bench/profile_onnxruntime.py` (docs/benchmarks.md, "The depth network, operator by
+/// operator").
+#[test]
+#[ignore = "measurement, not a check: run with --release --ignored --nocapture"]
+fn profile_shipped_depth_network_in_tract() {
+    let engine = TractEngine::new(2);
+    let input = reshader::engine::Tensor::new(
+        vec![1, 3, 288, 384],
+        (0..3 * 288 * 384)
+            .map(|i| (i * 7919 % 1000) as f32 / 1000.0)
+            .collect(),
+    );
+    for precision in ["fp32", "int8"] {
+        let manifest = Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join(format!("models/depth/tiefenrausch-{precision}.json"));
+        let model = reshader::engine::manifest::load_verified(&manifest).unwrap();
+        let source = reshader::engine::ModelSource {
+            path: &model.model_path,
+            bytes: &model.bytes,
+            precision: model.manifest.precision,
+        };
+        let ops = engine
+            .profile(source, &[("image", &input)], &["log_disparity"])
+            .unwrap();
+        let total: f64 = ops.iter().map(|(_, ms)| ms).sum();
+        println!("\ntiefenrausch-{precision}, 2 threads: {total:.1} ms\n\n| operator | ms | share |\n|---|---|---|");
+        for (op, ms) in &ops {
+            println!("| {op} | {ms:.1} | {:.0}% |", 100.0 * ms / total);
+        }
+    }
+}

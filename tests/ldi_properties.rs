@@ -5,7 +5,7 @@ use crate::ldi_support;
 use ldi_support::*;
 use reshader::depth::DepthMap;
 use reshader::io::photo::SrgbImage;
-use reshader::relocate::ldi::{BandColours, Border, Ldi, LdiConfig, LdiRelocator};
+use reshader::relocate::ldi::{BandColours, Border, Ldi, LdiConfig, LdiRelocator, Silhouettes};
 use reshader::relocate::reach_of;
 use reshader::relocate::{RelocateError, Relocator};
 
@@ -236,6 +236,67 @@ fn each_view_takes_the_front_colours_from_its_own_image() {
     for (b, d) in bright.data().iter().zip(dark.data()) {
         assert!((d - 0.5 * b).abs() < 1e-6);
     }
+}
+
+/// A red box in front of a wall that is blue up to column 44 and green from there; the
+/// box's right edge (column 39) is half red, half the blue beside it, as a photo's edge
+/// pixels are. The wall is the zero-parallax plane.
+fn box_with_a_mixed_edge() -> Scene {
+    const BLUE: [f32; 3] = [0.0, 0.0, 0.8];
+    let mut scene = Scene::wall(2.0);
+    for y in 0..H {
+        for x in 0..W {
+            let c = if x < 44 { BLUE } else { GREEN };
+            scene.colours.put(x as u32, y as u32, c);
+        }
+    }
+    let mut scene = scene.rect(16..40, 8..40, RED, 1.0);
+    for y in 8..40 {
+        scene.colours.put(39, y, [0.5, 0.0, 0.4]);
+    }
+    scene
+}
+
+#[test]
+fn soft_silhouettes_keep_the_photo_and_leave_no_rim_of_its_background() {
+    let scene = box_with_a_mixed_edge();
+    let config = |silhouettes| LdiConfig {
+        silhouettes,
+        ..LdiConfig::default()
+    };
+    let soft = scene.build(&config(Silhouettes::Soft), 0.3);
+    assert_eq!(
+        soft.stats().soft_pixels,
+        32,
+        "one soft pixel per row of the edge"
+    );
+    let at_input = soft.render(&scene.colours, &view(0.0, 2.0)).unwrap();
+    for (got, want) in at_input.data().iter().zip(scene.colours.data()) {
+        assert!(
+            (got - want).abs() < 1e-5,
+            "{got} vs {want} at the photo's camera"
+        );
+    }
+    // The box moves about 8 px right over the wall: its right edge lands on green.
+    let moved = view(-0.3, 2.0);
+    assert!((shift(-0.3, 1.0, 2.0) - 8.0).abs() < 1.0);
+    let rim = |image: &SrgbImage| {
+        (8..40)
+            .flat_map(|y| (44..W).map(move |x| image.get(x as u32, y as u32)))
+            .map(|c| if c[0] > 0.2 { c[2] } else { 0.0 })
+            .fold(0.0f32, f32::max)
+    };
+    let hard = scene.build(&config(Silhouettes::Hard), 0.3);
+    let hard_rim = rim(&hard.render(&scene.colours, &moved).unwrap());
+    let soft_rim = rim(&soft.render(&scene.colours, &moved).unwrap());
+    assert!(
+        hard_rim > 0.15,
+        "the hard edge carries the blue over the green ({hard_rim})"
+    );
+    assert!(
+        soft_rim < 0.05,
+        "the soft edge shows the green behind it ({soft_rim})"
+    );
 }
 
 #[test]

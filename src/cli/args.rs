@@ -15,7 +15,7 @@ use reshader::engine::manifest::Precision;
 use reshader::interleave::{Blend, Board};
 use reshader::io::keyword::Keyword;
 use reshader::pipeline::{Scene, SceneDepth};
-use reshader::relocate::ldi::Border;
+use reshader::relocate::ldi::{Border, Silhouettes};
 use reshader::relocate::{RelocateConfig, RelocateKind};
 use reshader::reshade::net::choice::{Head, ReshadeConfig};
 
@@ -317,6 +317,12 @@ pub struct RelocateArgs {
     /// a view sees beyond the border by patch synthesis from the view.
     #[arg(long, value_parser = keyword::<Border>(), default_value = "crop")]
     pub border: Border,
+    /// The foreground's outermost pixel at a depth step (LDI): drawn with the share of
+    /// it that is foreground, estimated from the colours on either side, over what each
+    /// view sees behind it (no rim of the photo's background follows the object), or
+    /// wholly foreground. `live` always draws them hard.
+    #[arg(long, value_parser = keyword::<Silhouettes>(), default_value = "soft")]
+    pub silhouettes: Silhouettes,
 }
 
 impl RelocateArgs {
@@ -324,6 +330,7 @@ impl RelocateArgs {
         RelocateConfig {
             kind: self.kind,
             border: self.border,
+            silhouettes: self.silhouettes,
         }
     }
 }

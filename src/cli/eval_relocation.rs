@@ -6,7 +6,7 @@ use anyhow::Result;
 use clap::Args;
 
 use reshader::eval::relocation::{run, EvalConfig, EvalDepth};
-use reshader::relocate::ldi::Border;
+use reshader::relocate::ldi::{Border, Silhouettes};
 
 use crate::args::{keyword, ReshadeArgs};
 
@@ -40,6 +40,9 @@ pub struct EvalArgs {
     /// What the LDI shows beyond the photo's borders (as `render --border`).
     #[arg(long, value_parser = keyword::<Border>(), default_value = "extend")]
     pub border: Border,
+    /// How the LDI draws the foreground's outermost pixels (as `render --silhouettes`).
+    #[arg(long, value_parser = keyword::<Silhouettes>(), default_value = "soft")]
+    pub silhouettes: Silhouettes,
     /// Depth the methods relocate with: the renderer's (`truth`), or the shipped depth
     /// network's (`network`: fp32, refined as `render` does) scale-aligned to the
     /// renderer's in disparity, as a real photo's depth would be.
@@ -68,6 +71,7 @@ pub fn eval_relocation(args: &EvalArgs) -> Result<()> {
         exposure: args.exposure,
         gamma: args.gamma,
         border: args.border,
+        silhouettes: args.silhouettes,
         depth_source: args.depth_source,
         json: args.json.clone(),
         sheets: args.sheets.clone(),

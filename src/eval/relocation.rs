@@ -41,7 +41,7 @@ use std::time::Instant;
 use crate::depth::net::{DepthNet, DepthNetError};
 use crate::depth::DepthMap;
 use crate::io::photo::SrgbImage;
-use crate::relocate::ldi::{view_reach, BandColours, Border, Ldi, LdiConfig};
+use crate::relocate::ldi::{view_reach, BandColours, Border, Ldi, LdiConfig, Silhouettes};
 use crate::relocate::{MeshWarp, RelocateError, Relocator};
 use crate::reshade::net::choice::ReshadeConfig;
 use crate::reshade::net::NetError;
@@ -99,6 +99,8 @@ pub struct EvalConfig {
     pub gamma: f32,
     /// What the LDI shows beyond the photo's borders.
     pub border: Border,
+    /// How the LDI draws the foreground's outermost pixels.
+    pub silhouettes: Silhouettes,
     /// Depth the methods relocate with: the renderer's, or the shipped depth network's
     /// scale-aligned to it in disparity.
     pub depth_source: EvalDepth,
@@ -181,7 +183,12 @@ pub fn run(args: &EvalConfig) -> Result<(Vec<ExampleReport>, String), EvalError>
         if let Some(net) = &depth_net {
             example.depth = estimated_depth(net, &example)?;
         }
-        let (report, sheet) = evaluate(&example, args.border, reshader.as_ref())?;
+        let ldi = LdiConfig {
+            border: args.border,
+            silhouettes: args.silhouettes,
+            ..LdiConfig::default()
+        };
+        let (report, sheet) = evaluate(&example, &ldi, reshader.as_ref())?;
         log::info!(
             "{}: {}",
             report.id,
@@ -217,6 +224,7 @@ fn estimated_depth(net: &DepthNet, ex: &Example) -> Result<DepthMap, EvalError> 
 fn true_regions(ex: &Example, view: &ViewCamera) -> Result<regions::Regions, RelocateError> {
     let config = LdiConfig {
         border: Border::Inpaint,
+        silhouettes: Silhouettes::Hard,
         ..LdiConfig::default()
     };
     let reach = view_reach(ex.offset, &ex.source);
@@ -235,7 +243,7 @@ fn true_regions(ex: &Example, view: &ViewCamera) -> Result<regions::Regions, Rel
 /// The dataset's depth and offsets are already in training units.
 fn evaluate(
     ex: &Example,
-    border: Border,
+    config: &LdiConfig,
     reshader: &dyn Reshader,
 ) -> Result<(ExampleReport, Vec<SrgbImage>), EvalError> {
     let fail = |source| EvalError::Relocate {
@@ -253,16 +261,12 @@ fn evaluate(
         centre: ex.offset,
         intrinsics: ex.source,
     };
-    let config = LdiConfig {
-        border,
-        ..LdiConfig::default()
-    };
     let start = Instant::now();
     let ldi = Ldi::build(
         &ex.input,
         &ex.depth,
         &ex.source,
-        &config,
+        config,
         view_reach(ex.offset, &ex.source),
     )
     .map_err(fail)?;
@@ -294,7 +298,7 @@ fn evaluate(
     let ldi_network = ldi.render(&network, &view).map_err(fail)?;
     let inpainted_config = LdiConfig {
         band_colours: BandColours::Inpainted,
-        ..config
+        ..config.clone()
     };
     let ldi_inpainted = Ldi::build(
         &ex.input,
@@ -508,12 +512,13 @@ fn write_sheet(dir: &Path, id: &str, images: &[SrgbImage]) -> Result<(), EvalErr
 /// the reshading model adds to the LDI's novel views.
 pub fn table(reports: &[ExampleReport], args: &EvalConfig, model: &str) -> String {
     let mut out = format!(
-        "{} examples, {:?} depth, tone mapping x{} gamma {}, LDI border {}, reshading model {model}; PSNR dB / SSIM against the ground-truth novel view; PSNR dB in the true geometry's regions\n\n",
+        "{} examples, {:?} depth, tone mapping x{} gamma {}, LDI border {}, {} silhouettes, reshading model {model}; PSNR dB / SSIM against the ground-truth novel view; PSNR dB in the true geometry's regions\n\n",
         reports.len(),
         args.depth_source,
         args.exposure,
         args.gamma,
-        args.border
+        args.border,
+        args.silhouettes
     );
     out.push_str(
         "| method | colours | all | visible in input | disoccluded | edge band | uncovered | border |\n|---|---|---|---|---|---|---|---|\n",

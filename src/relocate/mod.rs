@@ -15,7 +15,7 @@ pub mod map;
 
 use crate::depth::DepthMap;
 use crate::io::photo::SrgbImage;
-use crate::relocate::ldi::{view_reach, Border, LdiConfig, LdiRelocator};
+use crate::relocate::ldi::{view_reach, Border, LdiConfig, LdiRelocator, Silhouettes};
 use crate::relocate::map::ViewMap;
 use crate::views::{Intrinsics, ViewCamera};
 use image::RgbImage;
@@ -129,6 +129,8 @@ pub struct RelocateConfig {
     pub kind: RelocateKind,
     /// Beyond the photo's borders (LDI).
     pub border: Border,
+    /// How the foreground's outermost pixels are drawn at depth steps (LDI).
+    pub silhouettes: Silhouettes,
 }
 
 impl RelocateConfig {
@@ -143,8 +145,14 @@ impl RelocateConfig {
     /// The relocator of a live stream, whose framing holds steady across its frames
     /// ([`LdiRelocator::steady`]).
     pub fn build_live(&self) -> Box<dyn Relocator> {
+        // Live views are lookups into each frame, made once per key frame; a soft
+        // pixel is a blend of three pixels, which a lookup cannot express.
+        let config = LdiConfig {
+            silhouettes: Silhouettes::Hard,
+            ..self.ldi_config()
+        };
         match self.kind {
-            RelocateKind::Ldi => Box::new(LdiRelocator::steady(self.ldi_config())),
+            RelocateKind::Ldi => Box::new(LdiRelocator::steady(config)),
             RelocateKind::Mesh => Box::new(MeshWarp::default()),
         }
     }
@@ -152,6 +160,7 @@ impl RelocateConfig {
     fn ldi_config(&self) -> LdiConfig {
         LdiConfig {
             border: self.border,
+            silhouettes: self.silhouettes,
             ..LdiConfig::default()
         }
     }

@@ -159,7 +159,11 @@ fn textured_square() -> (RgbImage, DepthMap) {
 fn ldi_view_maps_render_the_views_the_ldi_renders() {
     let (frame, depth) = textured_square();
     let colours = SrgbImage::from_rgb8(&frame);
-    let relocator = LdiRelocator::default();
+    // As `live` builds it: a soft pixel is a blend, which a lookup cannot express.
+    let relocator = LdiRelocator::new(LdiConfig {
+        silhouettes: Silhouettes::Hard,
+        ..LdiConfig::default()
+    });
     let cameras = [view(-0.3), view(0.0), view(0.25)];
     let prepared = relocator
         .prepare(&colours, &depth, &camera(), &cameras)
@@ -189,17 +193,42 @@ fn ldi_view_maps_render_the_views_the_ldi_renders() {
 }
 
 #[test]
-fn inpainted_borders_give_no_view_map() {
+fn inpainted_borders_and_soft_silhouettes_give_no_view_map() {
     let (frame, depth) = textured_square();
     let colours = SrgbImage::from_rgb8(&frame);
-    let relocator = LdiRelocator::new(LdiConfig {
-        border: Border::Inpaint,
+    let hard = LdiConfig {
+        silhouettes: Silhouettes::Hard,
         ..LdiConfig::default()
-    });
+    };
+    let configs = [
+        (hard.clone(), true),
+        (
+            LdiConfig {
+                border: Border::Inpaint,
+                ..hard
+            },
+            false,
+        ),
+        (LdiConfig::default(), false),
+    ];
+    for (config, maps) in configs {
+        let relocator = LdiRelocator::new(config.clone());
+        let prepared = relocator
+            .prepare(&colours, &depth, &camera(), &[view(0.3)])
+            .unwrap();
+        assert_eq!(prepared.view_map(&view(0.3)).is_some(), maps, "{config:?}");
+    }
+}
+
+#[test]
+fn live_relocators_draw_hard_silhouettes_and_give_view_maps() {
+    let (frame, depth) = textured_square();
+    let colours = SrgbImage::from_rgb8(&frame);
+    let relocator = RelocateConfig::default().build_live();
     let prepared = relocator
         .prepare(&colours, &depth, &camera(), &[view(0.3)])
         .unwrap();
-    assert!(prepared.view_map(&view(0.3)).is_none());
+    assert!(prepared.view_map(&view(0.3)).is_some());
 }
 
 #[test]

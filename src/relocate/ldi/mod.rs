@@ -16,6 +16,7 @@
 mod band;
 mod edges;
 mod fill;
+mod matte;
 mod mesh;
 mod render;
 
@@ -87,6 +88,30 @@ pub enum BandColours {
     Inpainted,
 }
 
+/// How the foreground's outermost pixels are drawn at a depth step.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Silhouettes {
+    /// Each pixel on the near side of a cut is drawn with the share of it that is
+    /// foreground, over what each view sees behind it (see [`matte`]): no rim of the
+    /// photo's background moves with the object. The runtime's default.
+    #[default]
+    Soft,
+    /// Every pixel belongs wholly to its side of the cut.
+    Hard,
+}
+
+impl crate::io::keyword::Keyword for Silhouettes {
+    const ALL: &'static [(Self, &'static str)] =
+        &[(Silhouettes::Soft, "soft"), (Silhouettes::Hard, "hard")];
+}
+
+impl std::fmt::Display for Silhouettes {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(crate::io::keyword::Keyword::keyword(*self))
+    }
+}
+
 #[derive(Clone, Debug, PartialEq)]
 pub struct LdiConfig {
     /// A step between neighbouring pixels is a discontinuity when it exceeds this
@@ -107,6 +132,7 @@ pub struct LdiConfig {
     pub supersampling: usize,
     pub border: Border,
     pub band_colours: BandColours,
+    pub silhouettes: Silhouettes,
 }
 
 impl Default for LdiConfig {
@@ -123,6 +149,7 @@ impl Default for LdiConfig {
             // (`RelocateConfig`) crops.
             border: Border::Extend,
             band_colours: BandColours::View,
+            silhouettes: Silhouettes::Soft,
         }
     }
 }
@@ -136,6 +163,8 @@ pub struct LdiStats {
     pub contours_dropped: usize,
     pub cut_pairs: usize,
     pub band_samples: usize,
+    /// Near-side pixels of cuts drawn with partial coverage.
+    pub soft_pixels: usize,
     pub vertices: usize,
     /// Heap bytes the built LDI keeps (per-view buffers not included).
     pub memory_bytes: usize,
@@ -155,6 +184,7 @@ pub struct Ldi {
     /// too, which leaves every projection unchanged.
     scale: f64,
     mesh: mesh::Mesh,
+    mattes: matte::Mattes,
     border: Border,
     supersampling: usize,
     /// Build-time colours of the band samples, with [`BandColours::Inpainted`].
@@ -205,7 +235,7 @@ impl Ldi {
             config.min_contour_px,
         );
         let f = source.fx.max(source.fy);
-        let band = band::grow(&band::BandInput {
+        let mut band = band::grow(&band::BandInput {
             width: w,
             height: h,
             disparity: &disparity,
@@ -217,6 +247,10 @@ impl Ldi {
             patch_radius: config.patch_radius,
             random_candidates: config.random_candidates,
         });
+        let mattes = match config.silhouettes {
+            Silhouettes::Soft => matte::estimate(colours.data(), &disparity, &cuts, &mut band, w),
+            Silhouettes::Hard => matte::Mattes::default(),
+        };
         let (lo, hi) = disparity
             .iter()
             .fold((f32::INFINITY, 0.0f32), |(lo, hi), &d| {
@@ -253,6 +287,7 @@ impl Ldi {
             contours_dropped: cuts.contours_dropped,
             cut_pairs: cuts.pairs(&disparity).count(),
             band_samples: band.disparity.len(),
+            soft_pixels: mattes.soft.len(),
             vertices: mesh.vertices.len(),
             memory_bytes: mesh.vertices.capacity() * std::mem::size_of::<mesh::Vertex>()
                 + mesh.samples.capacity() * std::mem::size_of::<mesh::Sample>(),
@@ -266,13 +301,14 @@ impl Ldi {
         };
         log::info!(
             "LDI built: {}x{}, {} contours cut ({} dropped), {} vertices, {} in the \
-             background band, {}, border margin {} px",
+             background band, {} soft, {}, border margin {} px",
             stats.width,
             stats.height,
             stats.contours_kept,
             stats.contours_dropped,
             stats.vertices,
             stats.band_samples,
+            stats.soft_pixels,
             crate::io::limits::Bytes(stats.memory_bytes as u64),
             stats.border_margin_px
         );
@@ -286,6 +322,7 @@ impl Ldi {
             source: *source,
             scale,
             mesh,
+            mattes,
             border: config.border,
             supersampling: config.supersampling.max(1),
             band_rgb,
@@ -377,14 +414,23 @@ impl Ldi {
         let intrinsics = supersampled(&self.framed(&view.intrinsics), k);
         let centre = view.centre.map(|c| c / self.scale);
         let front_samples = self.stats.width * self.stats.height;
-        render::rasterise(&self.mesh, front_samples, centre, &intrinsics, k, origins)
+        render::rasterise(
+            &self.mesh,
+            &self.mattes,
+            front_samples,
+            centre,
+            &intrinsics,
+            k,
+            origins,
+        )
     }
 
     /// The view as a lookup into the colours: each pixel's subsamples' source pixels.
-    /// None with `--border inpaint` (holes are synthesised per view) or build-time band
-    /// colours (not in the colours rendered).
+    /// None with `--border inpaint` (holes are synthesised per view), build-time band
+    /// colours (not in the colours rendered) or soft silhouettes (a blend of three
+    /// pixels, not a lookup).
     pub fn view_map(&self, view: &ViewCamera) -> Option<ViewMap> {
-        if self.border == Border::Inpaint || self.band_rgb.is_some() {
+        if self.border == Border::Inpaint || self.band_rgb.is_some() || !self.mattes.is_empty() {
             return None;
         }
         let frame = self.rasterise(view, false);
@@ -504,6 +550,7 @@ impl Ldi {
         let front_samples = self.stats.width * self.stats.height;
         let weight = 1.0 / (k * k) as f32;
         let mut sums = vec![0.0f32; ow * 3];
+        let mut overlay = frame.overlay.iter().peekable();
         for (y, out) in rows.enumerate() {
             sums.fill(0.0);
             for sy in 0..k {
@@ -517,8 +564,33 @@ impl Ldi {
                     }
                 }
             }
+            let row_end = ((y + 1) * k * frame.width) as u32;
+            while let Some(&(i, m)) = overlay.next_if(|(i, _)| *i < row_end) {
+                let x = (i as usize % frame.width) / k;
+                let behind = self.sample_colour(frame.sample[i as usize], data, front_samples);
+                let soft = self.soft_colour(m, behind, data, front_samples);
+                for c in 0..3 {
+                    sums[3 * x + c] += (soft[c] - behind[c]) * weight;
+                }
+            }
             emit(out, &sums);
         }
+    }
+
+    /// The colour of soft pixel `m` over `behind`: its background share exchanged for
+    /// what lies behind it in this view ([`matte`]).
+    fn soft_colour(
+        &self,
+        m: u32,
+        behind: [f32; 3],
+        data: &[f32],
+        front_samples: usize,
+    ) -> [f32; 3] {
+        let soft = self.mattes.soft[m as usize];
+        let pixel = self.sample_colour(soft.sample, data, front_samples);
+        let beneath = self.sample_colour(soft.beneath, data, front_samples);
+        let share = 1.0 - soft.alpha;
+        std::array::from_fn(|c| (pixel[c] + share * (behind[c] - beneath[c])).clamp(0.0, 1.0))
     }
 }
 
@@ -686,13 +758,14 @@ impl Relocator for LdiRelocator {
         format!(
             "layered depth image: cut at {} relative disparity steps (contours >= {} px), \
              background band inpainted by patch synthesis from the background side, \
-             band colours from the {}, {}x{} supersampling, border {}",
+             band colours from the {}, {} silhouettes, {}x{} supersampling, border {}",
             c.edge_threshold,
             c.min_contour_px,
             match c.band_colours {
                 BandColours::View => "view's image",
                 BandColours::Inpainted => "build image",
             },
+            c.silhouettes,
             c.supersampling,
             c.supersampling,
             c.border

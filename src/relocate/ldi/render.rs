@@ -3,6 +3,7 @@
 //! covers from the farthest surface next to it, then resolve colours and average the
 //! subsamples, which anti-aliases the silhouettes.
 
+use super::matte::Mattes;
 use super::mesh::{Mesh, Vertex};
 use crate::relocate::{first_centre, past_last_centre, raster_triangle};
 use crate::views::Intrinsics;
@@ -25,6 +26,9 @@ pub(super) struct Frame {
     pub origin: Option<Vec<Origin>>,
     /// 1/z per subsample; filled subsamples have the surface they were filled from.
     pub inv_z: Vec<f32>,
+    /// The subsamples a soft pixel lies in front of, in index order, each with the
+    /// pixel's index among the [`Mattes`]: `sample` still holds what lies behind it.
+    pub overlay: Vec<(u32, u32)>,
 }
 
 /// No sample: a subsample that nothing covered, not even after hole filling (a view
@@ -33,9 +37,11 @@ pub(super) const EMPTY: u32 = u32::MAX;
 
 /// Projects and rasterises `mesh` for a camera at `centre` (in the build camera's frame)
 /// with intrinsics `k` (already supersampled). `front_samples` is how many samples are
-/// original pixels.
+/// original pixels. The soft pixels of `mattes` are left out of the opaque pass and laid
+/// over its result.
 pub(super) fn rasterise(
     mesh: &Mesh,
+    mattes: &Mattes,
     front_samples: usize,
     centre: [f64; 3],
     k: &Intrinsics,
@@ -50,7 +56,7 @@ pub(super) fn rasterise(
     for (s, quad) in mesh.samples.iter().enumerate() {
         let s = s as u32;
         let [a, b, c, d] = quad.corners.map(|i| projected[i as usize]);
-        if outside([a, b, c, d], w as f32, h as f32) {
+        if outside([a, b, c, d], w as f32, h as f32) || mattes.is_soft(s) {
             continue;
         }
         if !fill_trapezoid([a, b, c, d], s, w, h, &mut rows, &mut inv_z, &mut sample) {
@@ -59,7 +65,7 @@ pub(super) fn rasterise(
             }
         }
     }
-    let origin = origins.then(|| {
+    let mut origin: Option<Vec<Origin>> = origins.then(|| {
         sample
             .iter()
             .map(|&s| match s {
@@ -69,7 +75,15 @@ pub(super) fn rasterise(
             })
             .collect()
     });
+    // Before the holes are filled: a subsample that only a soft pixel covers is the
+    // soft pixel's, over whatever the fill then puts behind it.
+    let overlay = overlay(mesh, mattes, &projected, w, h, &inv_z);
     fill_holes(&mut sample, &mut inv_z, w, h);
+    if let Some(origin) = &mut origin {
+        for &(i, _) in &overlay {
+            origin[i as usize] = Origin::Front;
+        }
+    }
     Frame {
         width: w,
         height: h,
@@ -77,7 +91,47 @@ pub(super) fn rasterise(
         sample,
         origin,
         inv_z,
+        overlay,
     }
+}
+
+/// The subsamples where a soft pixel is the nearest surface, with the nearest soft
+/// pixel there. Soft pixels are a thin line along the silhouettes, so they are drawn as
+/// triangles into a list instead of a second frame-sized buffer.
+fn overlay(
+    mesh: &Mesh,
+    mattes: &Mattes,
+    projected: &[[f32; 3]],
+    w: usize,
+    h: usize,
+    opaque: &[f32],
+) -> Vec<(u32, u32)> {
+    let mut hits: Vec<(u32, f32, u32)> = Vec::new();
+    for (m, soft) in mattes.soft.iter().enumerate() {
+        let quad = mesh.samples[soft.sample as usize]
+            .corners
+            .map(|i| projected[i as usize]);
+        if outside(quad, w as f32, h as f32) {
+            continue;
+        }
+        let [a, b, c, d] = quad;
+        for tri in [[a, b, c], [b, d, c]] {
+            if tri.iter().any(|v| v[2] <= 0.0) {
+                continue;
+            }
+            let corners = tri.map(|v| [f64::from(v[0]), f64::from(v[1])]);
+            raster_triangle(corners, w, h, |i, b| {
+                let z = b[0] as f32 * tri[0][2] + b[1] as f32 * tri[1][2] + b[2] as f32 * tri[2][2];
+                if z > opaque[i] {
+                    hits.push((i as u32, z, m as u32));
+                }
+            });
+        }
+    }
+    // Nearest first within each subsample, then one per subsample.
+    hits.sort_unstable_by(|a, b| a.0.cmp(&b.0).then(b.1.total_cmp(&a.1)));
+    hits.dedup_by_key(|hit| hit.0);
+    hits.into_iter().map(|(i, _, m)| (i, m)).collect()
 }
 
 /// Whether a quad lies wholly beyond one side of the `w`x`h` frame, with a pixel's

@@ -300,6 +300,49 @@ fn soft_silhouettes_keep_the_photo_and_leave_no_rim_of_its_background() {
 }
 
 #[test]
+fn soft_silhouettes_take_the_foreground_share_of_the_background_along() {
+    // The box's edge spread the other way: the wall pixel beside it (column 40) is half
+    // red, as a photo's edge pixels are when depth puts them in the background.
+    let mut scene = box_with_a_mixed_edge();
+    for y in 8..40 {
+        scene.colours.put(39, y, RED);
+        scene.colours.put(40, y, [0.5, 0.0, 0.4]);
+    }
+    let config = |silhouettes| LdiConfig {
+        silhouettes,
+        ..LdiConfig::default()
+    };
+    let soft = scene.build(&config(Silhouettes::Soft), 0.3);
+    // Rows 9-38: the box's corner rows have no pixel on both sides of one cut only.
+    assert!(
+        soft.stats().soft_pixels >= 30,
+        "{}",
+        soft.stats().soft_pixels
+    );
+    let at_input = soft.render(&scene.colours, &view(0.0, 2.0)).unwrap();
+    for (got, want) in at_input.data().iter().zip(scene.colours.data()) {
+        assert!(
+            (got - want).abs() < 1e-5,
+            "{got} vs {want} at the photo's camera"
+        );
+    }
+    // The box moves about 8 px left: the wall at column 40 is in plain view.
+    let moved = view(0.3, 2.0);
+    let ghost = |image: &SrgbImage| (10..38).map(|y| image.get(40, y)[0]).fold(0.0f32, f32::max);
+    let hard = scene.build(&config(Silhouettes::Hard), 0.3);
+    let hard_ghost = ghost(&hard.render(&scene.colours, &moved).unwrap());
+    let soft_ghost = ghost(&soft.render(&scene.colours, &moved).unwrap());
+    assert!(
+        hard_ghost > 0.4,
+        "hard: the red share stays on the wall ({hard_ghost})"
+    );
+    assert!(
+        soft_ghost < 0.05,
+        "soft: it went with the box ({soft_ghost})"
+    );
+}
+
+#[test]
 fn the_relocator_prepares_once_and_renders_every_view_from_it() {
     let scene = random_scene(7);
     let depth = scene.depth_map();

@@ -317,10 +317,11 @@ pub struct RelocateArgs {
     /// a view sees beyond the border by patch synthesis from the view.
     #[arg(long, value_parser = keyword::<Border>(), default_value = "crop")]
     pub border: Border,
-    /// The foreground's outermost pixel at a depth step (LDI): drawn with the share of
-    /// it that is foreground, estimated from the colours on either side, over what each
-    /// view sees behind it (no rim of the photo's background follows the object), or
-    /// wholly foreground. `live` always draws them hard.
+    /// The pixels either side of a depth step that mix an object and its background
+    /// (LDI): their foreground share, estimated from the colours on either side, moves
+    /// with the object over what each view sees behind it (no rim of the photo's
+    /// background follows the object, no ghost of it stays behind), or each pixel goes
+    /// wholly to its side. `live` always draws them hard.
     #[arg(long, value_parser = keyword::<Silhouettes>(), default_value = "soft")]
     pub silhouettes: Silhouettes,
 }

@@ -40,7 +40,8 @@ pub struct EvalArgs {
     /// What the LDI shows beyond the photo's borders (as `render --border`).
     #[arg(long, value_parser = keyword::<Border>(), default_value = "extend")]
     pub border: Border,
-    /// How the LDI draws the foreground's outermost pixels (as `render --silhouettes`).
+    /// How the LDI draws the pixels that mix the two sides of a depth step (as `render
+    /// --silhouettes`).
     #[arg(long, value_parser = keyword::<Silhouettes>(), default_value = "soft")]
     pub silhouettes: Silhouettes,
     /// Depth the methods relocate with: the renderer's (`truth`), or the shipped depth

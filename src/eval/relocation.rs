@@ -99,7 +99,7 @@ pub struct EvalConfig {
     pub gamma: f32,
     /// What the LDI shows beyond the photo's borders.
     pub border: Border,
-    /// How the LDI draws the foreground's outermost pixels.
+    /// How the LDI draws the pixels that mix the two sides of a depth step.
     pub silhouettes: Silhouettes,
     /// Depth the methods relocate with: the renderer's, or the shipped depth network's
     /// scale-aligned to it in disparity.

@@ -129,7 +129,7 @@ pub struct RelocateConfig {
     pub kind: RelocateKind,
     /// Beyond the photo's borders (LDI).
     pub border: Border,
-    /// How the foreground's outermost pixels are drawn at depth steps (LDI).
+    /// How the pixels that mix the two sides of a depth step are drawn (LDI).
     pub silhouettes: Silhouettes,
 }
 

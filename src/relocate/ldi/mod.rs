@@ -88,13 +88,14 @@ pub enum BandColours {
     Inpainted,
 }
 
-/// How the foreground's outermost pixels are drawn at a depth step.
+/// How the pixels that mix the two sides of a depth step are drawn.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Silhouettes {
-    /// Each pixel on the near side of a cut is drawn with the share of it that is
+    /// The foreground share of the pixels either side of a cut moves with the
     /// foreground, over what each view sees behind it (see [`matte`]): no rim of the
-    /// photo's background moves with the object. The runtime's default.
+    /// photo's background moves with the object, no ghost of it stays behind. The
+    /// runtime's default.
     #[default]
     Soft,
     /// Every pixel belongs wholly to its side of the cut.
@@ -247,9 +248,9 @@ impl Ldi {
             patch_radius: config.patch_radius,
             random_candidates: config.random_candidates,
         });
-        let mattes = match config.silhouettes {
+        let (mut mattes, fringes) = match config.silhouettes {
             Silhouettes::Soft => matte::estimate(colours.data(), &disparity, &cuts, &mut band, w),
-            Silhouettes::Hard => matte::Mattes::default(),
+            Silhouettes::Hard => (matte::Mattes::default(), Vec::new()),
         };
         let (lo, hi) = disparity
             .iter()
@@ -266,7 +267,7 @@ impl Ldi {
                 ((v - source.cy) / source.fy) as f32,
             ]
         };
-        let mesh = mesh::build(&mesh::MeshInput {
+        let mut mesh = mesh::build(&mesh::MeshInput {
             width: w,
             height: h,
             disparity: &disparity,
@@ -280,6 +281,7 @@ impl Ldi {
                 0.0
             },
         });
+        matte::add_fringes(&mut mesh, &mut mattes, &fringes, w, &ray);
         let stats = LdiStats {
             width: w,
             height: h,
@@ -660,7 +662,9 @@ impl Ldi {
         }
         let s = sample as usize;
         match &self.band_rgb {
-            Some(band) if s >= front_samples => band[s - front_samples],
+            Some(band) if (front_samples..front_samples + band.len()).contains(&s) => {
+                band[s - front_samples]
+            }
             _ => {
                 let from = 3 * self.mesh.samples[s].colour_from as usize;
                 [data[from], data[from + 1], data[from + 2]]

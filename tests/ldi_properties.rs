@@ -257,19 +257,20 @@ fn box_with_a_mixed_edge() -> Scene {
     scene
 }
 
-#[test]
-fn soft_silhouettes_keep_the_photo_and_leave_no_rim_of_its_background() {
-    let scene = box_with_a_mixed_edge();
-    let config = |silhouettes| LdiConfig {
-        silhouettes,
-        ..LdiConfig::default()
+/// `scene` seen from a camera at `tx` (focus on the wall) with hard and with soft
+/// silhouettes, once the soft LDI is checked: at least `soft_pixels` soft pixels, and the
+/// photo given back at its own camera.
+fn hard_and_soft(scene: &Scene, tx: f64, soft_pixels: usize) -> (SrgbImage, SrgbImage) {
+    let build = |silhouettes| {
+        let config = LdiConfig {
+            silhouettes,
+            ..LdiConfig::default()
+        };
+        scene.build(&config, 0.3)
     };
-    let soft = scene.build(&config(Silhouettes::Soft), 0.3);
-    assert_eq!(
-        soft.stats().soft_pixels,
-        32,
-        "one soft pixel per row of the edge"
-    );
+    let soft = build(Silhouettes::Soft);
+    let count = soft.stats().soft_pixels;
+    assert!(count >= soft_pixels, "{count} soft pixels");
     let at_input = soft.render(&scene.colours, &view(0.0, 2.0)).unwrap();
     for (got, want) in at_input.data().iter().zip(scene.colours.data()) {
         assert!(
@@ -277,25 +278,34 @@ fn soft_silhouettes_keep_the_photo_and_leave_no_rim_of_its_background() {
             "{got} vs {want} at the photo's camera"
         );
     }
-    // The box moves about 8 px right over the wall: its right edge lands on green.
-    let moved = view(-0.3, 2.0);
+    let moved = view(tx, 2.0);
+    let hard = build(Silhouettes::Hard);
+    (
+        hard.render(&scene.colours, &moved).unwrap(),
+        soft.render(&scene.colours, &moved).unwrap(),
+    )
+}
+
+#[test]
+fn soft_silhouettes_keep_the_photo_and_leave_no_rim_of_its_background() {
+    // One soft pixel per row of the edge; the box moves about 8 px right over the wall,
+    // and its right edge lands on green.
     assert!((shift(-0.3, 1.0, 2.0) - 8.0).abs() < 1.0);
+    let (hard, soft) = hard_and_soft(&box_with_a_mixed_edge(), -0.3, 32);
     let rim = |image: &SrgbImage| {
         (8..40)
             .flat_map(|y| (44..W).map(move |x| image.get(x as u32, y as u32)))
             .map(|c| if c[0] > 0.2 { c[2] } else { 0.0 })
             .fold(0.0f32, f32::max)
     };
-    let hard = scene.build(&config(Silhouettes::Hard), 0.3);
-    let hard_rim = rim(&hard.render(&scene.colours, &moved).unwrap());
-    let soft_rim = rim(&soft.render(&scene.colours, &moved).unwrap());
+    let (hard_rim, soft_rim) = (rim(&hard), rim(&soft));
     assert!(
         hard_rim > 0.15,
-        "the hard edge carries the blue over the green ({hard_rim})"
+        "hard: the blue comes along over the green ({hard_rim})"
     );
     assert!(
         soft_rim < 0.05,
-        "the soft edge shows the green behind it ({soft_rim})"
+        "soft: the green behind it shows ({soft_rim})"
     );
 }
 
@@ -308,30 +318,11 @@ fn soft_silhouettes_take_the_foreground_share_of_the_background_along() {
         scene.colours.put(39, y, RED);
         scene.colours.put(40, y, [0.5, 0.0, 0.4]);
     }
-    let config = |silhouettes| LdiConfig {
-        silhouettes,
-        ..LdiConfig::default()
-    };
-    let soft = scene.build(&config(Silhouettes::Soft), 0.3);
-    // Rows 9-38: the box's corner rows have no pixel on both sides of one cut only.
-    assert!(
-        soft.stats().soft_pixels >= 30,
-        "{}",
-        soft.stats().soft_pixels
-    );
-    let at_input = soft.render(&scene.colours, &view(0.0, 2.0)).unwrap();
-    for (got, want) in at_input.data().iter().zip(scene.colours.data()) {
-        assert!(
-            (got - want).abs() < 1e-5,
-            "{got} vs {want} at the photo's camera"
-        );
-    }
-    // The box moves about 8 px left: the wall at column 40 is in plain view.
-    let moved = view(0.3, 2.0);
+    // Rows 9-38 (the box's corner rows have a second cut); the box moves about 8 px
+    // left, and the wall at column 40 is in plain view.
+    let (hard, soft) = hard_and_soft(&scene, 0.3, 30);
     let ghost = |image: &SrgbImage| (10..38).map(|y| image.get(40, y)[0]).fold(0.0f32, f32::max);
-    let hard = scene.build(&config(Silhouettes::Hard), 0.3);
-    let hard_ghost = ghost(&hard.render(&scene.colours, &moved).unwrap());
-    let soft_ghost = ghost(&soft.render(&scene.colours, &moved).unwrap());
+    let (hard_ghost, soft_ghost) = (ghost(&hard), ghost(&soft));
     assert!(
         hard_ghost > 0.4,
         "hard: the red share stays on the wall ({hard_ghost})"

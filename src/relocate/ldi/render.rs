@@ -116,12 +116,7 @@ fn overlay(
         }
         let [a, b, c, d] = quad;
         for tri in [[a, b, c], [b, d, c]] {
-            if tri.iter().any(|v| v[2] <= 0.0) {
-                continue;
-            }
-            let corners = tri.map(|v| [f64::from(v[0]), f64::from(v[1])]);
-            raster_triangle(corners, w, h, |i, b| {
-                let z = b[0] as f32 * tri[0][2] + b[1] as f32 * tri[1][2] + b[2] as f32 * tri[2][2];
+            raster_depth(tri, w, h, |i, z| {
                 if z > opaque[i] {
                     hits.push((i as u32, z, m as u32));
                 }
@@ -195,16 +190,26 @@ fn fill_triangle(
     inv_z: &mut [f32],
     sample: &mut [u32],
 ) {
+    raster_depth(p, w, h, |i, z| {
+        if z > inv_z[i] {
+            inv_z[i] = z;
+            sample[i] = id;
+        }
+    });
+}
+
+/// Visits the pixel centres inside the triangle with their 1/z (affine on screen);
+/// nothing for a triangle with a corner behind the camera.
+fn raster_depth(p: [[f32; 3]; 3], w: usize, h: usize, mut visit: impl FnMut(usize, f32)) {
     if p.iter().any(|v| v[2] <= 0.0) {
         return;
     }
     let corners = p.map(|v| [f64::from(v[0]), f64::from(v[1])]);
     raster_triangle(corners, w, h, |i, b| {
-        let z = b[0] as f32 * p[0][2] + b[1] as f32 * p[1][2] + b[2] as f32 * p[2][2];
-        if z > inv_z[i] {
-            inv_z[i] = z;
-            sample[i] = id;
-        }
+        visit(
+            i,
+            b[0] as f32 * p[0][2] + b[1] as f32 * p[1][2] + b[2] as f32 * p[2][2],
+        );
     });
 }
 

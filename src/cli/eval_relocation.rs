@@ -44,9 +44,11 @@ pub struct EvalArgs {
     /// --silhouettes`).
     #[arg(long, value_parser = keyword::<Silhouettes>(), default_value = "soft")]
     pub silhouettes: Silhouettes,
-    /// Depth the methods relocate with: the renderer's (`truth`), or the shipped depth
+    /// Depth the methods relocate with: the renderer's (`truth`), the shipped depth
     /// network's (`network`: fp32, refined as `render` does) scale-aligned to the
-    /// renderer's in disparity, as a real photo's depth would be.
+    /// renderer's in disparity, as a real photo's depth would be, or the renderer's with
+    /// a network's edges (`coarse`: shrunk to a third, grown back and refined as
+    /// `render` refines network depth; right shapes, soft edges).
     #[arg(long, value_parser = keyword::<EvalDepth>(), default_value = "truth")]
     pub depth_source: EvalDepth,
     /// Also write the per-example numbers as JSON here.

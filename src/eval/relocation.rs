@@ -174,14 +174,17 @@ pub fn run(args: &EvalConfig) -> Result<(Vec<ExampleReport>, String), EvalError>
     let dirs = example_dirs(&args.data, args.limit)?;
     let reshader = args.reshade.build()?;
     let depth_net = match args.depth_source {
-        EvalDepth::Truth => None,
         EvalDepth::Network => Some(network_depth::load()?),
+        EvalDepth::Truth | EvalDepth::Coarse => None,
     };
     let mut reports = Vec::new();
     for dir in &dirs {
         let mut example = load_example(dir, args.exposure, args.gamma)?;
         if let Some(net) = &depth_net {
             example.depth = estimated_depth(net, &example)?;
+        }
+        if args.depth_source == EvalDepth::Coarse {
+            example.depth = network_depth::coarsened(&example.input, &example.true_depth);
         }
         let ldi = LdiConfig {
             border: args.border,

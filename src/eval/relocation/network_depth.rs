@@ -4,8 +4,10 @@
 //! evaluation measures edges and uncovered regions, not the scale.
 
 use crate::depth::net::{network_depth, photo_size, DepthNet, DepthNetError, StageOptions};
+use crate::depth::refine::{refine_disparity, RefineOptions};
 use crate::depth::DepthMap;
 use crate::engine::manifest::Precision;
+use crate::engine::resample;
 use crate::io::photo::SrgbImage;
 
 use super::SKY_DEPTH;
@@ -19,11 +21,39 @@ pub enum EvalDepth {
     Truth,
     /// The shipped depth network on input.exr (tone-mapped), aligned to depth.exr.
     Network,
+    /// The renderer's depth with a network's edges ([`coarsened`]): the scene's shapes
+    /// stay right, so what the edges cost is told apart from what the network's shapes
+    /// cost.
+    Coarse,
 }
 
 impl crate::io::keyword::Keyword for EvalDepth {
-    const ALL: &'static [(Self, &'static str)] =
-        &[(Self::Truth, "truth"), (Self::Network, "network")];
+    const ALL: &'static [(Self, &'static str)] = &[
+        (Self::Truth, "truth"),
+        (Self::Network, "network"),
+        (Self::Coarse, "coarse"),
+    ];
+}
+
+/// How much coarser than the photo [`coarsened`] makes the depth: a 384-px network
+/// output serving a photo of about a thousand pixels.
+const COARSE_FACTOR: usize = 3;
+
+/// `truth` as a network would give it at a third of the photo's size: its disparity
+/// area-shrunk, grown back bilinearly (ramps across every edge) and refined against the
+/// photo as `render` refines network depth.
+pub fn coarsened(photo: &SrgbImage, truth: &DepthMap) -> DepthMap {
+    let (w, h) = (truth.width(), truth.height());
+    let (sw, sh) = ((w / COARSE_FACTOR).max(1), (h / COARSE_FACTOR).max(1));
+    let disparity: Vec<f32> = truth.data().iter().map(|&z| 1.0 / z).collect();
+    let small = resample::resize(&disparity, w, h, sw, sh);
+    let ramps = resample::resize(&small, sw, sh, w, h);
+    let options = RefineOptions {
+        radius: RefineOptions::radius_for(sw.max(sh), w.max(h)),
+        ..RefineOptions::default()
+    };
+    let refined = refine_disparity(photo.data(), &ramps, w, h, options);
+    DepthMap::new(w, h, refined.iter().map(|&d| 1.0 / d).collect())
 }
 
 /// The shipped fp32 network with `render`'s engine (tract, every core).
@@ -90,6 +120,36 @@ mod tests {
         for (a, b) in out.data().iter().zip(&truth) {
             assert!((a - b).abs() < 1e-4 * b, "{a} vs {b}");
         }
+    }
+
+    #[test]
+    fn coarsened_depth_keeps_the_plateaus_and_softens_the_edge() {
+        // A near box (depth 1) in columns 20-39 before a wall (depth 2), 60x30; the
+        // photo is one grey, so the refinement has no colour edge to put the step on.
+        let (w, h) = (60, 30);
+        let depth: Vec<f32> = (0..w * h)
+            .map(|i| {
+                if (20..40).contains(&(i % w)) {
+                    1.0
+                } else {
+                    2.0
+                }
+            })
+            .collect();
+        let mut photo = SrgbImage::new(w as u32, h as u32);
+        for y in 0..h as u32 {
+            for x in 0..w as u32 {
+                photo.put(x, y, [0.5; 3]);
+            }
+        }
+        let out = coarsened(&photo, &DepthMap::new(w, h, depth.clone()));
+        let row = &out.data()[15 * w..16 * w];
+        for (x, &z) in row.iter().enumerate() {
+            assert!((1.0 - 1e-4..=2.0 + 1e-4).contains(&z), "{x}: {z}");
+        }
+        assert!((row[5] - 2.0).abs() < 1e-4 && (row[30] - 1.0).abs() < 1e-4);
+        let between = row.iter().filter(|&&z| (1.01..1.99).contains(&z)).count();
+        assert!(between >= 2, "the step is spread over a ramp: {row:?}");
     }
 
     #[test]

@@ -1,7 +1,8 @@
 //! Rendering the layered mesh from one view: project the corners, rasterise every
-//! sample's quad into a supersampled id/depth buffer (nearest wins), fill what no quad
-//! covers from the farthest surface next to it, then resolve colours and average the
-//! subsamples, which anti-aliases the silhouettes.
+//! opaque sample's quad into a supersampled id/depth buffer (nearest wins), list where
+//! the soft pixels of the silhouettes lie in front of it, fill what no quad covers from
+//! the farthest surface next to it, then resolve colours (blending the soft pixels over
+//! what is behind them) and average the subsamples, which anti-aliases the silhouettes.
 
 use super::matte::Mattes;
 use super::mesh::{Mesh, Vertex};

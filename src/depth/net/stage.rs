@@ -278,7 +278,7 @@ fn finish(
 /// Refines at `(pw, ph)` or, when that is larger, at a working size of at most
 /// `max_side` (the median's cost is per pixel), then upsamples to `(pw, ph)`: the
 /// remaining blur is at most that many pixels over the working size's.
-fn refined(
+pub(crate) fn refined(
     disparity: &[f32],
     (w, h): (usize, usize),
     photo: &RgbImage,

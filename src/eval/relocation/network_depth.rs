@@ -3,8 +3,10 @@
 //! the true depth: relative depth has an unknown scale and shift in disparity, and the
 //! evaluation measures edges and uncovered regions, not the scale.
 
-use crate::depth::net::{network_depth, photo_size, DepthNet, DepthNetError, StageOptions};
-use crate::depth::refine::{refine_disparity, RefineOptions};
+use crate::depth::net::{
+    network_depth, photo_size, refined, DepthNet, DepthNetError, StageOptions,
+};
+use crate::depth::refine::RefineOptions;
 use crate::depth::DepthMap;
 use crate::engine::manifest::Precision;
 use crate::engine::resample;
@@ -40,20 +42,21 @@ impl crate::io::keyword::Keyword for EvalDepth {
 const COARSE_FACTOR: usize = 3;
 
 /// `truth` as a network would give it at a third of the photo's size: its disparity
-/// area-shrunk, grown back bilinearly (ramps across every edge) and refined against the
-/// photo as `render` refines network depth.
+/// area-shrunk, then grown back (ramps across every edge) and refined against the photo
+/// by the stage that does it to network depth in `render`.
 pub fn coarsened(photo: &SrgbImage, truth: &DepthMap) -> DepthMap {
     let (w, h) = (truth.width(), truth.height());
     let (sw, sh) = ((w / COARSE_FACTOR).max(1), (h / COARSE_FACTOR).max(1));
     let disparity: Vec<f32> = truth.data().iter().map(|&z| 1.0 / z).collect();
     let small = resample::resize(&disparity, w, h, sw, sh);
-    let ramps = resample::resize(&small, sw, sh, w, h);
-    let options = RefineOptions {
-        radius: RefineOptions::radius_for(sw.max(sh), w.max(h)),
-        ..RefineOptions::default()
-    };
-    let refined = refine_disparity(photo.data(), &ramps, w, h, options);
-    DepthMap::new(w, h, refined.iter().map(|&d| 1.0 / d).collect())
+    let (grown, _) = refined(
+        &small,
+        (sw, sh),
+        &photo.to_rgb8(),
+        (w, h),
+        RefineOptions::default(),
+    );
+    DepthMap::new(w, h, grown.iter().map(|&d| 1.0 / d).collect())
 }
 
 /// The shipped fp32 network with `render`'s engine (tract, every core).

@@ -34,22 +34,29 @@ def deterministic(shape: list[int], dtype) -> np.ndarray:
     return values.astype(dtype).reshape(shape)
 
 
-def time_model(model: dict, threads: int, runs: int) -> dict:
-    options = ort.SessionOptions()
+def session_and_feeds(path: str, inputs, threads: int, options=None):
+    """A CPU session of the ONNX file on `threads` threads (with `options`, if given,
+    for anything else), and the deterministic inputs of the given shapes by name."""
+    options = options or ort.SessionOptions()
     options.intra_op_num_threads = threads
     options.inter_op_num_threads = 1
     session = ort.InferenceSession(
-        model["path"], sess_options=options, providers=["CPUExecutionProvider"]
+        path, sess_options=options, providers=["CPUExecutionProvider"]
     )
     types = {i.name: i.type for i in session.get_inputs()}
     feeds = {}
-    for name, shape in model["inputs"]:
+    for name, shape in inputs:
         if name not in types:
             raise ValueError(f"the graph has no input {name!r} (it has {sorted(types)})")
         dtype = DTYPES.get(types[name])
         if dtype is None:
             raise ValueError(f"input {name!r} has unsupported type {types[name]}")
         feeds[name] = deterministic(shape, dtype)
+    return session, feeds
+
+
+def time_model(model: dict, threads: int, runs: int) -> dict:
+    session, feeds = session_and_feeds(model["path"], model["inputs"], threads)
     session.run(None, feeds)
     samples = []
     for _ in range(max(runs, 1)):

@@ -5,7 +5,7 @@
 
 The counterpart of tract's per-operator profile (`TractEngine::profile`; for the depth
 network the ignored test `depth_models::profile_shipped_depth_network_in_tract`): the
-same deterministic inputs as `peer_onnxruntime.py`, the same threads, one warm-up run,
+session and deterministic inputs of `peer_onnxruntime.py`, the same threads, one warm-up run,
 and the table of the last timed run from onnxruntime's own profiler. onnxruntime's graph
 optimisations rename and fuse nodes (a convolution absorbs the clip after it, layouts
 change to blocks of channels with Reorder nodes between them), so the operator types are
@@ -23,7 +23,7 @@ import tempfile
 import time
 
 import onnxruntime as ort
-from peer_onnxruntime import DTYPES, deterministic
+from peer_onnxruntime import session_and_feeds
 
 
 def parse_input(text: str) -> tuple[str, list[int]]:
@@ -43,13 +43,9 @@ def profile(path: str, inputs: list[tuple[str, list[int]]], threads: int, runs: 
 
 def profile_into(trace_dir: str, path: str, inputs, threads: int, runs: int):
     options = ort.SessionOptions()
-    options.intra_op_num_threads = threads
-    options.inter_op_num_threads = 1
     options.enable_profiling = True
     options.profile_file_prefix = os.path.join(trace_dir, "ort")
-    session = ort.InferenceSession(path, options, providers=["CPUExecutionProvider"])
-    types = {i.name: i.type for i in session.get_inputs()}
-    feeds = {name: deterministic(shape, DTYPES[types[name]]) for name, shape in inputs}
+    session, feeds = session_and_feeds(path, inputs, threads, options)
     walls = []
     for _ in range(max(runs, 1) + 1):
         started = time.perf_counter()

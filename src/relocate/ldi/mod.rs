@@ -164,7 +164,7 @@ pub struct LdiStats {
     pub contours_dropped: usize,
     pub cut_pairs: usize,
     pub band_samples: usize,
-    /// Near-side pixels of cuts drawn with partial coverage.
+    /// Pixels either side of cuts drawn with partial coverage (soft silhouettes).
     pub soft_pixels: usize,
     pub vertices: usize,
     /// Heap bytes the built LDI keeps (per-view buffers not included).

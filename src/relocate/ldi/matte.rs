@@ -41,12 +41,12 @@ pub(super) struct Soft {
     pub alpha: f32,
 }
 
-/// The soft pixels of an LDI, and which front samples they are.
+/// The soft pixels of an LDI, and which samples they are.
 #[derive(Default)]
 pub(super) struct Mattes {
     pub soft: Vec<Soft>,
-    /// Per front sample: its index in `soft`, or [`NONE`].
-    pub index: Vec<u32>,
+    /// Per sample: whether it is one of `soft` (samples past the end are not).
+    pub in_soft_pass: Vec<bool>,
 }
 
 impl Mattes {
@@ -56,7 +56,7 @@ impl Mattes {
 
     /// Whether sample `s` is drawn in the soft pass rather than with the opaque ones.
     pub fn is_soft(&self, s: u32) -> bool {
-        self.index.get(s as usize).is_some_and(|&i| i != NONE)
+        self.in_soft_pass.get(s as usize).copied().unwrap_or(false)
     }
 }
 
@@ -98,11 +98,11 @@ pub(super) fn estimate(
     }
     let mut mattes = Mattes {
         soft: Vec::new(),
-        index: vec![NONE; pixels],
+        in_soft_pass: vec![false; pixels],
     };
     for (p, &(a, outer)) in alpha.iter().enumerate().filter(|(_, &(a, _))| a < OPAQUE) {
         band.source[band.at[p] as usize] = outer as u32;
-        mattes.index[p] = mattes.soft.len() as u32;
+        mattes.in_soft_pass[p] = true;
         mattes.soft.push(Soft {
             sample: p as u32,
             beneath: (pixels + band.at[p] as usize) as u32,
@@ -152,6 +152,7 @@ pub(super) fn add_fringes(
 ) {
     mesh.vertices.reserve_exact(2 * fringes.len());
     mesh.samples.reserve_exact(fringes.len());
+    mattes.in_soft_pass.resize(mesh.samples.len(), false);
     for f in fringes {
         let corners = mesh.samples[f.near].corners;
         // Per fringe corner (top-left, top-right, bottom-left, bottom-right): the near
@@ -188,11 +189,7 @@ pub(super) fn add_fringes(
             beneath: f.pixel as u32,
             alpha: f.alpha,
         });
-    }
-    mattes.index.resize(mesh.samples.len(), NONE);
-    let first = mesh.samples.len() - fringes.len();
-    for (k, i) in mattes.index[first..].iter_mut().enumerate() {
-        *i = (mattes.soft.len() - fringes.len() + k) as u32;
+        mattes.in_soft_pass.push(true);
     }
 }
 

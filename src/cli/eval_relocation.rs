@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use anyhow::Result;
 use clap::Args;
 
-use reshader::eval::relocation::{run, EvalConfig, EvalDepth};
+use reshader::eval::relocation::{run, EvalConfig, EvalDepth, COARSE_FACTOR};
 use reshader::relocate::ldi::{Border, Silhouettes};
 
 use crate::args::{keyword, ReshadeArgs};
@@ -51,6 +51,11 @@ pub struct EvalArgs {
     /// `render` refines network depth; right shapes, soft edges).
     #[arg(long, value_parser = keyword::<EvalDepth>(), default_value = "truth")]
     pub depth_source: EvalDepth,
+    /// With `--depth-source coarse`: how many times coarser than the photo the depth is
+    /// made before it is grown back and refined (3: a 384-px network serving a
+    /// 1,000-px photo; 1.5-2: `render`, which refines at the views' size).
+    #[arg(long, default_value_t = COARSE_FACTOR, value_parser = coarse_factor)]
+    pub coarse_factor: f64,
     /// Also write the per-example numbers as JSON here.
     #[arg(long)]
     pub json: Option<PathBuf>,
@@ -66,6 +71,14 @@ pub struct EvalArgs {
     pub reshade: ReshadeArgs,
 }
 
+/// A factor of at least 1 (1: the true depth refined as network depth is).
+fn coarse_factor(s: &str) -> Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(f) if f.is_finite() && f >= 1.0 => Ok(f),
+        _ => Err(format!("'{s}' is not a factor of 1 or more")),
+    }
+}
+
 /// Runs `reshader eval-relocation` and prints the table.
 pub fn eval_relocation(args: &EvalArgs) -> Result<()> {
     let config = EvalConfig {
@@ -76,6 +89,7 @@ pub fn eval_relocation(args: &EvalArgs) -> Result<()> {
         border: args.border,
         silhouettes: args.silhouettes,
         depth_source: args.depth_source,
+        coarse_factor: args.coarse_factor,
         json: args.json.clone(),
         sheets: args.sheets.clone(),
         reshade: args.reshade.config(),

@@ -31,7 +31,7 @@ mod example;
 mod network_depth;
 pub mod regions;
 
-pub use network_depth::EvalDepth;
+pub use network_depth::{EvalDepth, COARSE_FACTOR};
 
 use example::{example_dirs, load_example, Example};
 
@@ -104,6 +104,8 @@ pub struct EvalConfig {
     /// Depth the methods relocate with: the renderer's, or the shipped depth network's
     /// scale-aligned to it in disparity.
     pub depth_source: EvalDepth,
+    /// How much coarser than the photo `EvalDepth::Coarse` makes the true depth.
+    pub coarse_factor: f64,
     /// Where the per-example numbers go as JSON.
     pub json: Option<PathBuf>,
     /// Where the contact sheets go, one PNG per example.
@@ -184,7 +186,8 @@ pub fn run(args: &EvalConfig) -> Result<(Vec<ExampleReport>, String), EvalError>
             example.depth = estimated_depth(net, &example)?;
         }
         if args.depth_source == EvalDepth::Coarse {
-            example.depth = network_depth::coarsened(&example.input, &example.true_depth);
+            example.depth =
+                network_depth::coarsened(&example.input, &example.true_depth, args.coarse_factor);
         }
         let ldi = LdiConfig {
             border: args.border,
@@ -511,13 +514,21 @@ fn write_sheet(dir: &Path, id: &str, images: &[SrgbImage]) -> Result<(), EvalErr
     crate::io::output::write_atomic(&path, &bytes).map_err(|e| io(e.to_string()))
 }
 
+/// The depth source as the table's header names it, with the coarsening factor.
+fn depth_label(args: &EvalConfig) -> String {
+    match args.depth_source {
+        EvalDepth::Coarse => format!("Coarse (x{})", args.coarse_factor),
+        other => format!("{other:?}"),
+    }
+}
+
 /// The Table-1-style summary: mean PSNR / SSIM per method over all examples, then what
 /// the reshading model adds to the LDI's novel views.
 pub fn table(reports: &[ExampleReport], args: &EvalConfig, model: &str) -> String {
     let mut out = format!(
         "{} examples, {:?} depth, tone mapping x{} gamma {}, LDI border {}, {} silhouettes, reshading model {model}; PSNR dB / SSIM against the ground-truth novel view; PSNR dB in the true geometry's regions\n\n",
         reports.len(),
-        args.depth_source,
+        depth_label(args),
         args.exposure,
         args.gamma,
         args.border,

@@ -37,16 +37,18 @@ impl crate::io::keyword::Keyword for EvalDepth {
     ];
 }
 
-/// How much coarser than the photo [`coarsened`] makes the depth: a 384-px network
-/// output serving a photo of about a thousand pixels.
-const COARSE_FACTOR: usize = 3;
+/// How much coarser than the photo [`coarsened`] makes the depth by default: a 384-px
+/// network output serving a photo of about a thousand pixels. `render` works at the
+/// views' size, where a 384-px output is about 1.5-2 times coarser.
+pub const COARSE_FACTOR: f64 = 3.0;
 
-/// `truth` as a network would give it at a third of the photo's size: its disparity
+/// `truth` as a network would give it at `1/factor` of the photo's size: its disparity
 /// area-shrunk, then grown back (ramps across every edge) and refined against the photo
 /// by the stage that does it to network depth in `render`.
-pub fn coarsened(photo: &SrgbImage, truth: &DepthMap) -> DepthMap {
+pub fn coarsened(photo: &SrgbImage, truth: &DepthMap, factor: f64) -> DepthMap {
     let (w, h) = (truth.width(), truth.height());
-    let (sw, sh) = ((w / COARSE_FACTOR).max(1), (h / COARSE_FACTOR).max(1));
+    let shrunk = |n: usize| ((n as f64 / factor) as usize).clamp(1, n);
+    let (sw, sh) = (shrunk(w), shrunk(h));
     let disparity: Vec<f32> = truth.data().iter().map(|&z| 1.0 / z).collect();
     let small = resample::resize(&disparity, w, h, sw, sh);
     let (grown, _) = refined(
@@ -145,7 +147,7 @@ mod tests {
                 photo.put(x, y, [0.5; 3]);
             }
         }
-        let out = coarsened(&photo, &DepthMap::new(w, h, depth.clone()));
+        let out = coarsened(&photo, &DepthMap::new(w, h, depth.clone()), COARSE_FACTOR);
         let row = &out.data()[15 * w..16 * w];
         for (x, &z) in row.iter().enumerate() {
             assert!((1.0 - 1e-4..=2.0 + 1e-4).contains(&z), "{x}: {z}");

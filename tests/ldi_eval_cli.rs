@@ -212,3 +212,36 @@ fn eval_relocation_scores_a_reshading_model_and_refuses_a_missing_one() {
     assert_eq!(out.status.code(), Some(1), "{stderr}");
     assert!(stderr.contains("no-such-model.json"), "{stderr}");
 }
+
+/// `--depth-source coarse` names its factor in the table's header; a factor under 1 is
+/// refused before any example is read.
+#[test]
+fn eval_relocation_coarsens_by_the_factor_asked() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("val");
+    write_example(&data.join("a"), [0.1, 0.0, 0.0]);
+    let run = |factor: &str| {
+        Command::new(env!("CARGO_BIN_EXE_reshader"))
+            .arg("eval-relocation")
+            .arg(&data)
+            .args(["--model", "none", "--depth-source", "coarse"])
+            .args(["--coarse-factor", factor])
+            .output()
+            .unwrap()
+    };
+    let out = run("1.6");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(stdout.contains("Coarse (x1.6) depth"), "{stdout}");
+    let out = run("0.5");
+    assert_eq!(out.status.code(), Some(2));
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        stderr.contains("--coarse-factor") && stderr.contains("not a factor of 1 or more"),
+        "{stderr}"
+    );
+}

@@ -526,7 +526,7 @@ fn depth_label(args: &EvalConfig) -> String {
 /// the reshading model adds to the LDI's novel views.
 pub fn table(reports: &[ExampleReport], args: &EvalConfig, model: &str) -> String {
     let mut out = format!(
-        "{} examples, {:?} depth, tone mapping x{} gamma {}, LDI border {}, {} silhouettes, reshading model {model}; PSNR dB / SSIM against the ground-truth novel view; PSNR dB in the true geometry's regions\n\n",
+        "{} examples, {} depth, tone mapping x{} gamma {}, LDI border {}, {} silhouettes, reshading model {model}; PSNR dB / SSIM against the ground-truth novel view; PSNR dB in the true geometry's regions\n\n",
         reports.len(),
         depth_label(args),
         args.exposure,

@@ -176,13 +176,17 @@ mod tests {
         assert_eq!(weighted_median(&mut t), 3.0);
     }
 
-    #[test]
-    fn selection_finds_what_sorting_finds() {
-        let mut state = 12345u32;
-        let mut next = move || {
+    /// A reproducible stream of numbers in [0, 1) from `seed`.
+    fn uniform(mut state: u32) -> impl FnMut() -> f32 {
+        move || {
             state = state.wrapping_mul(1664525).wrapping_add(1013904223);
             (state >> 8) as f32 / (1 << 24) as f32
-        };
+        }
+    }
+
+    #[test]
+    fn selection_finds_what_sorting_finds() {
+        let mut next = uniform(12345);
         for n in 1..90 {
             // Few distinct values, as on a depth plateau, and weights far apart.
             let taps: Vec<(f32, f32)> = (0..n)
@@ -207,11 +211,7 @@ mod tests {
     #[test]
     fn windows_up_to_the_cap_count_every_pixel() {
         let (w, h) = (23, 17);
-        let mut state = 99u32;
-        let mut next = move || {
-            state = state.wrapping_mul(1664525).wrapping_add(1013904223);
-            (state >> 8) as f32 / (1 << 24) as f32
-        };
+        let mut next = uniform(99);
         let rgb: Vec<f32> = (0..3 * w * h).map(|_| next()).collect();
         let disparity: Vec<f32> = (0..w * h).map(|_| (next() * 8.0).floor()).collect();
         let opts = RefineOptions {

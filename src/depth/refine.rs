@@ -102,8 +102,8 @@ fn refine_row(
     let inv_s2 = 1.0 / (opts.sigma_color * opts.sigma_color).max(1e-12);
     let mut taps: Vec<(f32, f32)> = Vec::with_capacity((2 * TAPS + 1).pow(2));
     for (x, refined) in out.iter_mut().enumerate() {
-        let window = || window((x, y), (width, height), r, stride);
-        let (lo, hi) = window().fold((f32::INFINITY, 0.0f32), |(lo, hi), j| {
+        let taps_at = || window((x, y), (width, height), r, stride);
+        let (lo, hi) = taps_at().fold((f32::INFINITY, 0.0f32), |(lo, hi), j| {
             (lo.min(disparity[j]), hi.max(disparity[j]))
         });
         let centre = y * width + x;
@@ -113,7 +113,7 @@ fn refine_row(
         }
         let me = &rgb[3 * centre..3 * centre + 3];
         taps.clear();
-        taps.extend(window().map(|j| {
+        taps.extend(taps_at().map(|j| {
             let c = &rgb[3 * j..3 * j + 3];
             let d2 = (c[0] - me[0]).powi(2) + (c[1] - me[1]).powi(2) + (c[2] - me[2]).powi(2);
             (disparity[j], 1.0 / (1.0 + d2 * inv_s2))

@@ -24,7 +24,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from .data import Augment, DatasetError, ReshadeDataset
+from .data import Augment, DatasetError, ReshadeDataset, list_examples
 from .model import NetConfig, ReshadeNet
 from .train import atomic_write
 
@@ -177,10 +177,19 @@ def calibrate(net: ReshadeNet, batches) -> int:
 
 
 def training_crops(
-    root: Path, count: int, batch_size: int, crop: int, seed: int, augment: Augment | None = None
+    roots: Path | list[Path],
+    count: int,
+    batch_size: int,
+    crop: int,
+    seed: int,
+    augment: Augment | None = None,
 ) -> Iterator[dict[str, torch.Tensor]]:
-    """`count` batches of augmented training crops from a dataset folder, reproducible by seed."""
-    dataset = ReshadeDataset(root, crop=crop, augment=augment or Augment())
+    """`count` batches of augmented training crops from a dataset folder, or the pooled
+    examples of several, reproducible by seed."""
+    pooled = [
+        f for root in ([roots] if isinstance(roots, Path) else roots) for f in list_examples(root)
+    ]
+    dataset = ReshadeDataset(pooled, crop=crop, augment=augment or Augment())
     torch.manual_seed(seed)  # the dataset seeds its augmentation generator from torch
     order = np.random.default_rng(seed).permutation(max(len(dataset), count * batch_size))
     for i in range(count):
@@ -234,7 +243,14 @@ def command_line(command: str, args: argparse.Namespace, positional: tuple[str, 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("checkpoint", type=Path, help="fp32 training checkpoint (.pt)")
-    p.add_argument("--data", type=Path, required=True, help="training dataset folder")
+    p.add_argument(
+        "--data",
+        type=Path,
+        nargs="+",
+        required=True,
+        help="training dataset folder(s), their examples pooled (the families a model was "
+        "trained on: the crops should look like what it will see)",
+    )
     p.add_argument(
         "--val-data",
         type=Path,
@@ -421,7 +437,7 @@ def qat(args: argparse.Namespace) -> dict:
         "qat_command": command_line("quantize", args, ("checkpoint",)),
         "qat_steps": args.steps,
         "qat_wall_time_s": round(time.time() - t0, 1),
-        "qat_data": str(args.data.resolve()),
+        "qat_data": " ".join(str(d.resolve()) for d in args.data),
         "validation": validation,
     }
 

@@ -11,6 +11,7 @@ import pytest
 import torch
 
 from reshader_train import cli
+from reshader_train.data import DatasetError
 from reshader_train.export import (
     DECODER,
     ENCODER,
@@ -392,6 +393,25 @@ def test_quantize_weights_form_fine_tunes_with_float_activations(data, tmp_path,
     assert state["quantization"]["qat_target"] == "fp32"
     assert cli.main(argv + ["--out", str(tmp_path / "q.pt")]) == 0
     assert calls["n"] > 0
+
+
+def test_quantize_pools_the_crops_of_several_folders(data, tmp_path):
+    import shutil
+
+    torch.manual_seed(0)
+    net = ReshadeNet(net_config(TINY))
+    ckpt = tmp_path / "checkpoint.pt"
+    torch.save({"model": net.state_dict(), "net_config": net.cfg.to_json(), "step": 5}, ckpt)
+    other = tmp_path / "other-family"
+    shutil.copytree(data, other)
+    argv = ["quantize", str(ckpt), "--data", str(data), str(other), "--steps", "1",
+            "--batch-size", "2", "--crop", "32", "--calib-batches", "1", "--threads", "1",
+            "--form", "weights", "--out", str(tmp_path / "w.pt")]  # fmt: skip
+    assert cli.main(argv) == 0
+    state = torch.load(tmp_path / "w.pt", weights_only=False)
+    assert state["qat_data"].split() == [str(data.resolve()), str(other.resolve())]
+    with pytest.raises(DatasetError, match="missing"):
+        next(training_crops([data, tmp_path / "missing"], 1, 2, 32, seed=0))
 
 
 def test_flow_head_with_dead_zone_exports_in_every_precision(data, tmp_path):

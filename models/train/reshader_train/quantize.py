@@ -177,7 +177,7 @@ def calibrate(net: ReshadeNet, batches) -> int:
 
 
 def training_crops(
-    roots: Path | list[Path],
+    roots: str | Path | list[Path],
     count: int,
     batch_size: int,
     crop: int,
@@ -186,9 +186,9 @@ def training_crops(
 ) -> Iterator[dict[str, torch.Tensor]]:
     """`count` batches of augmented training crops from a dataset folder, or the pooled
     examples of several, reproducible by seed."""
-    pooled = [
-        f for root in ([roots] if isinstance(roots, Path) else roots) for f in list_examples(root)
-    ]
+    if isinstance(roots, (str, Path)):
+        roots = [roots]
+    pooled = [f for root in roots for f in list_examples(root)]
     dataset = ReshadeDataset(pooled, crop=crop, augment=augment or Augment())
     torch.manual_seed(seed)  # the dataset seeds its augmentation generator from torch
     order = np.random.default_rng(seed).permutation(max(len(dataset), count * batch_size))

@@ -23,7 +23,9 @@ show); and the LDI's build and per-view render times.
 
 Examples:
   reshader eval-relocation data/reshade/val --sheets sheets/ --json eval.json
-  reshader eval-relocation data/reshade/val --depth-source network --border inpaint";
+  reshader eval-relocation data/reshade/val --depth-source network --border inpaint
+  reshader eval-relocation data/heldout-640/rooms --depth-source network \
+      --depth-model runs/depth/tuned-fp32.onnx";
 
 /// `reshader eval-relocation`'s arguments.
 #[derive(Clone, Debug, Args)]
@@ -51,6 +53,11 @@ pub struct EvalArgs {
     /// `render` refines network depth; right shapes, soft edges).
     #[arg(long, value_parser = keyword::<EvalDepth>(), default_value = "truth")]
     pub depth_source: EvalDepth,
+    /// With `--depth-source network`: this depth model (an .onnx with its manifest
+    /// beside it, or the manifest) instead of the shipped one, e.g. one fine-tuned by
+    /// `reshader-train train-depth`.
+    #[arg(long)]
+    pub depth_model: Option<PathBuf>,
     /// With `--depth-source coarse`: how many times coarser than the photo the depth is
     /// made before it is grown back and refined (3: a 384-px network serving a
     /// 1,000-px photo; 1.5-2: `render`, which refines at the views' size).
@@ -81,6 +88,9 @@ fn coarse_factor(s: &str) -> Result<f64, String> {
 
 /// Runs `reshader eval-relocation` and prints the table.
 pub fn eval_relocation(args: &EvalArgs) -> Result<()> {
+    if args.depth_model.is_some() && args.depth_source != EvalDepth::Network {
+        anyhow::bail!("--depth-model needs --depth-source network");
+    }
     let config = EvalConfig {
         data: args.data.clone(),
         limit: args.limit,
@@ -89,6 +99,7 @@ pub fn eval_relocation(args: &EvalArgs) -> Result<()> {
         border: args.border,
         silhouettes: args.silhouettes,
         depth_source: args.depth_source,
+        depth_model: args.depth_model.clone(),
         coarse_factor: args.coarse_factor,
         json: args.json.clone(),
         sheets: args.sheets.clone(),

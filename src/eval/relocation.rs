@@ -104,6 +104,8 @@ pub struct EvalConfig {
     /// Depth the methods relocate with: the renderer's, or the shipped depth network's
     /// scale-aligned to it in disparity.
     pub depth_source: EvalDepth,
+    /// With `EvalDepth::Network`: this depth model instead of the shipped one.
+    pub depth_model: Option<PathBuf>,
     /// How much coarser than the photo `EvalDepth::Coarse` makes the true depth.
     pub coarse_factor: f64,
     /// Where the per-example numbers go as JSON.
@@ -176,7 +178,7 @@ pub fn run(args: &EvalConfig) -> Result<(Vec<ExampleReport>, String), EvalError>
     let dirs = example_dirs(&args.data, args.limit)?;
     let reshader = args.reshade.build()?;
     let depth_net = match args.depth_source {
-        EvalDepth::Network => Some(network_depth::load()?),
+        EvalDepth::Network => Some(network_depth::load(args.depth_model.as_deref())?),
         EvalDepth::Truth | EvalDepth::Coarse => None,
     };
     let mut reports = Vec::new();

@@ -59,6 +59,16 @@ COMMANDS = [
         "held-out examples as 8-bit PNGs with PyTorch's PSNR, for the runtime's tests",
     ),
     ("convert-depth", "reshader_train.depthconv.command", "Caffe2 depth net -> ONNX int8, fp32"),
+    (
+        "train-depth",
+        "reshader_train.depthtune.train",
+        "fine-tune the depth network on rendered photos with true depth",
+    ),
+    (
+        "export-depth",
+        "reshader_train.depthtune.export",
+        "a train-depth checkpoint as an fp32 ONNX depth model with its manifest",
+    ),
 ]
 
 

@@ -287,6 +287,11 @@ def _load_extra(folder: Path, meta: dict, shape: tuple[int, int]) -> tuple[Targe
 def load_example(folder: Path) -> Example:
     try:
         meta = json.loads((folder / "meta.json").read_text())
+        if meta.get("input_only"):
+            raise DatasetError(
+                f"{folder}: rendered with --input-only (a photo and its depth, for "
+                "train-depth): no reshaded target to train or score a reshading network on"
+            )
         raw_offset = meta["novel_offset"]
     except (OSError, ValueError, KeyError, TypeError) as err:
         raise DatasetError(

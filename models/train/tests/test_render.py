@@ -602,3 +602,35 @@ def test_meta_cameras_and_depth_relocate_the_novel_view_onto_the_reshaded_one(mi
     unmoved = error(novel[inside], resh[inside])
     # Measured: 0.034 relocated, 0.10 unmoved; a mirrored camera axis gives 0.13.
     assert relocated < 0.06 and relocated < 0.5 * unmoved
+
+
+def test_render_input_only_writes_the_photo_and_its_depth(mi, tmp_path):
+    out = tmp_path / "depth"
+    args = ["render", "--out", str(out), "--count", "1", "--size", "16x12", "--spp", "2"]
+    assert run_cli(*args, "--input-only") == 0
+    folder = out / "00000-000000"
+    assert sorted(os.listdir(folder)) == ["depth.exr", "input.exr", "meta.json"]
+    meta = json.load(open(folder / "meta.json"))
+    assert meta["input_only"] is True and "invalid_fraction" not in meta
+    full = tmp_path / "full"
+    assert run_cli(*args[:2], str(full), *args[3:]) == 0
+    same = [
+        np.array(mi.Bitmap(str(d / "00000-000000" / n)))
+        for d in (out, full)
+        for n in ("input.exr", "depth.exr")
+    ]
+    np.testing.assert_array_equal(same[0], same[2])  # the same photo as a full example's
+    np.testing.assert_array_equal(same[1], same[3])
+    assert (
+        run_cli(
+            "render",
+            "--scenes",
+            "analytic",
+            "--out",
+            str(tmp_path / "a"),
+            "--count",
+            "1",
+            "--input-only",
+        )
+        == 2
+    )

@@ -3,6 +3,8 @@
 //! the true depth: relative depth has an unknown scale and shift in disparity, and the
 //! evaluation measures edges and uncovered regions, not the scale.
 
+use std::path::Path;
+
 use crate::depth::net::{
     network_depth, photo_size, refined, DepthNet, DepthNetError, StageOptions,
 };
@@ -61,10 +63,15 @@ pub fn coarsened(photo: &SrgbImage, truth: &DepthMap, factor: f64) -> DepthMap {
     DepthMap::new(w, h, grown.iter().map(|&d| 1.0 / d).collect())
 }
 
-/// The shipped fp32 network with `render`'s engine (tract, every core).
-pub fn load() -> Result<DepthNet, DepthNetError> {
+/// `model` (its manifest or the .onnx beside it), else the shipped fp32 network, with
+/// `render`'s engine (tract, every core).
+pub fn load(model: Option<&Path>) -> Result<DepthNet, DepthNetError> {
     let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
-    DepthNet::shipped(Precision::Fp32, crate::engine::by_name("tract", cores)?)
+    let engine = crate::engine::by_name("tract", cores)?;
+    match model {
+        Some(path) => DepthNet::load(path, engine),
+        None => DepthNet::shipped(Precision::Fp32, engine),
+    }
 }
 
 /// The network's depth for `photo`, aligned to `truth` over the `valid` pixels.

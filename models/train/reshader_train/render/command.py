@@ -77,6 +77,13 @@ def add_arguments(parser) -> None:
         "training is supervised at several cameras (train --targets-per-example)",
     )
     parser.add_argument(
+        "--input-only",
+        action="store_true",
+        help="write only input.exr, depth.exr and meta.json (no reshaded or novel render, "
+        "no mask; meta.json says input_only): examples for training a depth network "
+        "(train-depth), about a third of the cost. Mitsuba scenes only",
+    )
+    parser.add_argument(
         "--layouts",
         type=int,
         default=0,
@@ -131,7 +138,8 @@ def parse_settings(args) -> RenderSettings:
     targets = getattr(args, "targets", 1)
     if targets < 1:
         raise ValueError(f"--targets {targets}: need at least 1")
-    return RenderSettings(width, height, args.spp, r_min, r_max, change_seeds, targets)
+    input_only = getattr(args, "input_only", False)
+    return RenderSettings(width, height, args.spp, r_min, r_max, change_seeds, targets, input_only)
 
 
 def summarize(seconds: list[float], skipped: int, failed: list) -> str:
@@ -195,6 +203,8 @@ def _renderer(args):
                 raise ValueError(f"--{flag.replace('_', '-')} does not apply to analytic scenes")
         if args.change_seeds != 1:
             raise ValueError("analytic scenes have no sampling noise: --change-seeds must be 1")
+        if getattr(args, "input_only", False):
+            raise ValueError("--input-only applies to Mitsuba scenes only")
         return AnalyticSource()
     if getattr(args, "targets", 1) != 1:
         raise ValueError("--targets applies to analytic scenes only (Mitsuba renders one)")
@@ -222,7 +232,8 @@ def run(args) -> int:
         f"{len(todo)} to render, {skipped} already complete; "
         f"{settings.width}x{settings.height} at {settings.spp} spp"
         + (f", change over {settings.change_seeds} seeds" if settings.change_seeds > 1 else "")
-        + (f", {settings.targets} targets per example" if settings.targets > 1 else ""),
+        + (f", {settings.targets} targets per example" if settings.targets > 1 else "")
+        + (", input and depth only" if settings.input_only else ""),
         flush=True,
     )
     seconds, failed = [], []

@@ -35,6 +35,7 @@ TARGET_MEDIAN = 0.02
 # clearance from all geometry.
 CLEARANCE = 0.35
 FILES = ("input.exr", "reshaded.exr", "novel.exr", "depth.exr", "mask.png", "meta.json")
+IMAGES = ("input", "reshaded", "novel")
 
 
 @dataclass(frozen=True)
@@ -50,6 +51,9 @@ class RenderSettings:
     # Reshaded targets per example (novel cameras): the first is written as reshaded.exr,
     # the others as reshaded-<k>.exr (analytic scenes only).
     targets: int = 1
+    # Only the input and its depth (no reshaded or novel render, no mask): examples for
+    # training a depth network, at a third of the cost.
+    input_only: bool = False
 
 
 def example_id(seed: int, index: int) -> str:
@@ -200,8 +204,10 @@ def render_views(
     max_depth: int,
     timings: dict,
     change_seeds: int = 1,
+    input_only: bool = False,
 ) -> dict:
-    """input / reshaded / novel RGB, invalid fraction per pixel, and input depth."""
+    """input / reshaded / novel RGB, invalid fraction per pixel, and input depth (with
+    `input_only`, the input and its depth alone)."""
     from .integrator import make_path, make_reshade, render_depth, render_image
 
     path = make_path(max_depth)
@@ -209,6 +215,11 @@ def render_views(
     t = time.perf_counter()
     out["input"] = render_image(scene, input_cam, spp, seed, path)[..., :3]
     timings["input"] = time.perf_counter() - t
+    if input_only:
+        t = time.perf_counter()
+        out["depth"] = render_depth(scene, input_cam)
+        timings["depth"] = time.perf_counter() - t
+        return out
     t = time.perf_counter()
     reshade = make_reshade(novel_cam, input_cam, max_depth)
     reshaded = render_image(scene, input_cam, spp, seed, reshade)
@@ -278,8 +289,9 @@ def example_meta(views: dict, seed: int, index: int, settings: RenderSettings, *
     the (novel camera, offset) pairs of the targets after the first, whose images are
     views["extra"][k - 1]["reshaded"]."""
     scale = brightness_scale(views["input"])
-    for name in ("input", "reshaded", "novel"):
-        views[name] = views[name] * scale
+    for name in IMAGES:
+        if name in views:
+            views[name] = views[name] * scale
     for target in views.get("extra", ()):
         target["reshaded"] = target["reshaded"] * scale
     meta = {
@@ -294,7 +306,6 @@ def example_meta(views: dict, seed: int, index: int, settings: RenderSettings, *
         "input_camera": kw["input_cam"].meta(),
         "novel_camera": kw["novel_cam"].meta(),
         "novel_offset": [float(v) for v in kw["offset"]],
-        "invalid_fraction": float((views["invalid"] > 0).mean()),
         "scene": {
             **kw["scene"],
             "camera": kw["camera"],
@@ -303,6 +314,10 @@ def example_meta(views: dict, seed: int, index: int, settings: RenderSettings, *
         },
         "render_seconds": kw["timings"],
     }
+    if "invalid" in views:
+        meta["invalid_fraction"] = float((views["invalid"] > 0).mean())
+    else:
+        meta["input_only"] = True
     if kw.get("extra"):
         meta["extra_targets"] = [
             {
@@ -329,10 +344,12 @@ def write_example(out_dir: str, views: dict, meta: dict, write_exr, write_mask) 
     tmp = os.path.join(out_dir, f".tmp-{ex_id}-{os.getpid()}")
     clear_stale_tmp(out_dir, ex_id)
     os.makedirs(tmp)
-    for name in ("input", "reshaded", "novel"):
-        write_exr(os.path.join(tmp, f"{name}.exr"), views[name])
+    for name in IMAGES:
+        if name in views:
+            write_exr(os.path.join(tmp, f"{name}.exr"), views[name])
     write_exr(os.path.join(tmp, "depth.exr"), views["depth"][..., None])
-    write_mask(os.path.join(tmp, "mask.png"), np.where(views["invalid"] > 0, 0, 255))
+    if "invalid" in views:
+        write_mask(os.path.join(tmp, "mask.png"), np.where(views["invalid"] > 0, 0, 255))
     for entry, target in zip(meta.get("extra_targets", ()), views.get("extra", ()), strict=True):
         write_exr(os.path.join(tmp, entry["reshaded"]), target["reshaded"])
         write_mask(os.path.join(tmp, entry["mask"]), np.where(target["invalid"] > 0, 0, 255))
@@ -411,6 +428,7 @@ def render_example(mi, source, out_dir: str, seed: int, index: int, settings: Re
         ex.params["max_depth"],
         timings,
         settings.change_seeds,
+        settings.input_only,
     )
     timings["total"] = time.perf_counter() - start
     meta = example_meta(

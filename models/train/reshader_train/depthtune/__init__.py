@@ -1,0 +1,2 @@
+"""Fine-tuning the depth network on rendered photos with true depth (`train-depth`,
+`export-depth`)."""

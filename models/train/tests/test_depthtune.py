@@ -1,0 +1,105 @@
+"""train-depth / export-depth: the shipped depth graph in PyTorch, its loss, fine-tuning
+and writing the tuned weights back (no Mitsuba needed)."""
+
+import json
+from pathlib import Path
+
+import numpy as np
+import onnxruntime as ort
+import pytest
+import torch
+
+from reshader_train.cli import main
+from reshader_train.data import DatasetError, load_example
+from reshader_train.depthtune.graph import DepthGraph
+from reshader_train.depthtune.loss import aligned, depth_loss
+from reshader_train.synthetic import write_exr
+
+BASE = Path(__file__).resolve().parents[2] / "depth" / "tiefenrausch-fp32.onnx"
+
+
+def _example(folder: Path, rng, size=(64, 64)) -> None:
+    """A bright box in front of a textured wall: a photo and its depth, input-only."""
+    h, w = size
+    folder.mkdir(parents=True)
+    depth = np.full((h, w), 4.0, np.float32)
+    y0, x0 = rng.integers(8, h // 2), rng.integers(8, w // 2)
+    depth[y0 : y0 + h // 3, x0 : x0 + w // 3] = 1.5
+    rgb = 0.01 + 0.02 * rng.random((h, w, 3)).astype(np.float32)
+    rgb[depth < 2] += np.array([0.05, 0.02, 0.01], np.float32)
+    write_exr(folder / "input.exr", {"R": rgb[..., 0], "G": rgb[..., 1], "B": rgb[..., 2]})
+    write_exr(folder / "depth.exr", {"Y": depth})
+    (folder / "meta.json").write_text(json.dumps({"id": folder.name, "input_only": True}))
+
+
+@pytest.fixture(scope="module")
+def depth_data(tmp_path_factory):
+    root = tmp_path_factory.mktemp("depth")
+    rng = np.random.default_rng(3)
+    for i in range(4):
+        _example(root / "train" / "fam" / f"{i:05d}", rng)
+    for i in range(2):
+        _example(root / "val" / f"{i:05d}", rng)
+    return root
+
+
+def test_the_graph_in_torch_matches_onnxruntime():
+    net = DepthGraph.load(BASE)
+    x = np.random.default_rng(0).random((1, 3, 64, 96), dtype=np.float32)
+    with torch.no_grad():
+        ours = net(torch.from_numpy(x)).numpy()
+    (theirs,) = ort.InferenceSession(str(BASE)).run(None, {"image": x})
+    assert np.abs(ours - theirs).max() < 1e-4
+    assert ours.std() > 1e-3  # a real output, not a constant
+
+
+def test_the_loss_ignores_scale_and_shift_but_not_shape():
+    target = torch.rand(2, 32, 32) + 0.1
+    log_pred = (3.0 * target + 0.5).log()[:, None]
+    loss, _ = depth_loss(log_pred, target)
+    assert float(loss) < 1e-5
+    assert torch.allclose(aligned(3.0 * target + 0.5, target), target, atol=1e-5)
+    swapped, _ = depth_loss(target.flip(-1).log()[:, None], target)
+    assert float(swapped) > 0.05
+
+
+def test_train_depth_resumes_and_export_writes_a_loadable_tuned_graph(depth_data, tmp_path):
+    run = tmp_path / "run"
+    argv = ["train-depth", "--data", str(depth_data / "train"), "--val", str(depth_data / "val"),
+            "--out", str(run), "--base", str(BASE), "--crop", "32x32", "--batch", "2",
+            "--checkpoint-every", "2", "--val-every", "2", "--threads", "1"]  # fmt: skip
+    assert main([*argv, "--steps", "2"]) == 0
+    assert main([*argv, "--steps", "4"]) == 0  # resumes from step 2
+    log = [json.loads(line) for line in (run / "log.jsonl").read_text().splitlines()]
+    assert [r["step"] for r in log] == [0, 1, 2, 3, 4]
+    assert {"data", "grad"} <= set(log[-1]["val"])
+    out = tmp_path / "tuned" / "depth-tuned-fp32.onnx"
+    assert (
+        main(["export-depth", str(run / "step-000004.pt"), "--out", str(out), "--base", str(BASE)])
+        == 0
+    )
+    manifest = json.loads(out.with_suffix(".json").read_text())
+    assert manifest["file"] == out.name and manifest["training"]["steps"] == 4
+    x = np.random.default_rng(1).random((1, 3, 32, 64), dtype=np.float32)
+    (tuned,) = ort.InferenceSession(str(out)).run(None, {"image": x})
+    (base,) = ort.InferenceSession(str(BASE)).run(None, {"image": x})
+    assert np.abs(tuned - base).max() > 1e-4  # the weights moved ...
+    net = DepthGraph.load(BASE)
+    net.weights.load_state_dict(torch.load(run / "step-000004.pt", weights_only=False)["weights"])
+    with torch.no_grad():
+        assert np.abs(net(torch.from_numpy(x)).numpy() - tuned).max() < 1e-4  # ... into the file
+
+
+def test_train_depth_names_a_bad_crop_and_a_missing_folder(depth_data, tmp_path, capsys):
+    common = ["--val", str(depth_data / "val"), "--out", str(tmp_path / "r"), "--base", str(BASE)]
+    assert (
+        main(["train-depth", "--data", str(depth_data / "train"), "--crop", "30x32", *common]) == 2
+    )
+    assert "multiples of 32" in capsys.readouterr().err
+    assert main(["train-depth", "--data", str(tmp_path / "nothing"), *common]) == 2
+    assert "nothing: dataset folder does not exist" in capsys.readouterr().err
+
+
+def test_input_only_examples_are_refused_for_reshading(depth_data):
+    with pytest.raises(DatasetError, match="--input-only"):
+        load_example(depth_data / "val" / "00000")

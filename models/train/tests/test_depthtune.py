@@ -8,6 +8,7 @@ import numpy as np
 import onnxruntime as ort
 import pytest
 import torch
+from PIL import Image
 
 from reshader_train.cli import main
 from reshader_train.data import DatasetError, load_example
@@ -74,12 +75,16 @@ def test_train_depth_resumes_and_export_writes_a_loadable_tuned_graph(depth_data
     assert [r["step"] for r in log] == [0, 1, 2, 3, 4]
     assert {"data", "grad"} <= set(log[-1]["val"])
     out = tmp_path / "tuned" / "depth-tuned-fp32.onnx"
-    assert (
-        main(["export-depth", str(run / "step-000004.pt"), "--out", str(out), "--base", str(BASE)])
-        == 0
-    )
+    photo, sheet = tmp_path / "photo.jpg", tmp_path / "sheet.png"
+    Image.fromarray(np.random.default_rng(2).integers(0, 255, (480, 640, 3), np.uint8)).save(photo)
+    argv = ["export-depth", str(run / "step-000004.pt"), "--out", str(out), "--base", str(BASE),
+            "--photos", str(photo), "--sheet", str(sheet)]  # fmt: skip
+    assert main(argv) == 0
+    assert Image.open(sheet).size == (3 * 384, 288)  # input, base and tuned disparity
     manifest = json.loads(out.with_suffix(".json").read_text())
     assert manifest["file"] == out.name and manifest["training"]["steps"] == 4
+    (row,) = manifest["validation"]["photos"]
+    assert row["photo"] == "photo.jpg" and 0 < row["pearson"] < 1
     x = np.random.default_rng(1).random((1, 3, 32, 64), dtype=np.float32)
     (tuned,) = ort.InferenceSession(str(out)).run(None, {"image": x})
     (base,) = ort.InferenceSession(str(BASE)).run(None, {"image": x})
@@ -98,6 +103,19 @@ def test_train_depth_names_a_bad_crop_and_a_missing_folder(depth_data, tmp_path,
     assert "multiples of 32" in capsys.readouterr().err
     assert main(["train-depth", "--data", str(tmp_path / "nothing"), *common]) == 2
     assert "nothing: dataset folder does not exist" in capsys.readouterr().err
+
+
+def test_a_corrupt_or_foreign_base_graph_is_named(depth_data, tmp_path, capsys):
+    bad = tmp_path / "bad.onnx"
+    bad.write_bytes(b"not a protobuf at all")
+    argv = ["train-depth", "--data", str(depth_data / "train"), "--val", str(depth_data / "val"),
+            "--out", str(tmp_path / "r"), "--base", str(bad)]  # fmt: skip
+    assert main(argv) == 2
+    assert "bad.onnx: not a readable ONNX file" in capsys.readouterr().err
+    reshade = BASE.parents[1] / "reshade" / "reshade-lite-fp32-decoder.onnx"
+    assert main([*argv[:-1], str(reshade)]) == 2
+    assert "reshade-lite-fp32-decoder.onnx: unsupported op" in capsys.readouterr().err
+    assert not (tmp_path / "r").exists()
 
 
 def test_input_only_examples_are_refused_for_reshading(depth_data):

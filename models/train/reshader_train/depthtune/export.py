@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import hashlib
+import io
 import json
 import os
 import sys
@@ -50,6 +51,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default=[],
         help="real photos to compare the tuned depth with the base's on",
     )
+    p.add_argument(
+        "--sheet",
+        type=Path,
+        default=None,
+        help="also write a PNG of those photos: the network's input, the base's disparity "
+        "and the tuned one's (near = white), one row per photo",
+    )
 
 
 def _write_atomic(path: Path, data: bytes) -> None:
@@ -77,17 +85,43 @@ def tuned_model(base: Path, weights: dict[str, torch.Tensor]) -> onnx.ModelProto
     return model
 
 
-def photo_agreement(base: Path, tuned: onnx.ModelProto, photos: list[Path]) -> list[dict]:
+def _grey(disparity: np.ndarray) -> np.ndarray:
+    """Disparity as 8-bit grey, its 2nd to 98th percentile stretched over the range."""
+    lo, hi = np.percentile(disparity, [2, 98])
+    grey = np.clip((disparity - lo) / max(hi - lo, 1e-9), 0, 1) * 255
+    return np.repeat(grey.astype(np.uint8)[..., None], 3, 2)
+
+
+def _write_sheet(path: Path, rows: list[np.ndarray]) -> None:
+    from PIL import Image
+
+    width = max(r.shape[1] for r in rows)
+    padded = [np.pad(r, ((0, 0), (0, width - r.shape[1]), (0, 0))) for r in rows]
+    buf = io.BytesIO()
+    Image.fromarray(np.concatenate(padded, 0)).save(buf, format="PNG")
+    _write_atomic(path, buf.getvalue())
+
+
+def photo_agreement(
+    base: Path, tuned: onnx.ModelProto, photos: list[Path], sheet: Path | None = None
+) -> list[dict]:
+    """How far the tuned graph moved each photo's disparity from the base graph's; with
+    `sheet`, a PNG with one row per photo: the network's input, the base's disparity and
+    the tuned one's (near = white)."""
     import onnxruntime as ort
 
     sessions = [
         ort.InferenceSession(str(base), providers=["CPUExecutionProvider"]),
         ort.InferenceSession(tuned.SerializeToString(), providers=["CPUExecutionProvider"]),
     ]
-    rows = []
+    rows, tiles = [], []
     for photo in photos:
         x = network_input(load_rgb(photo))
-        a, b = (np.exp(s.run(None, {"image": x})[0]).ravel() for s in sessions)
+        maps = [np.exp(s.run(None, {"image": x})[0][0, 0]) for s in sessions]
+        tiles.append(
+            np.concatenate([(x[0].transpose(1, 2, 0) * 255).astype(np.uint8), *map(_grey, maps)], 1)
+        )
+        a, b = (m.ravel() for m in maps)
         fit = np.polyfit(b, a, 1)
         rows.append(
             {
@@ -97,6 +131,8 @@ def photo_agreement(base: Path, tuned: onnx.ModelProto, photos: list[Path]) -> l
                 "mean_rel_after_fit": float(np.mean(np.abs(np.polyval(fit, b) - a) / a)),
             }
         )
+    if sheet is not None and tiles:
+        _write_sheet(sheet, tiles)
     return rows
 
 
@@ -122,7 +158,7 @@ def export(args) -> None:
             "engine": "onnxruntime CPU",
             "metric": "disparity exp(output) of this graph against the base graph's, after an "
             "affine fit: Pearson correlation and mean relative difference",
-            "photos": photo_agreement(args.base, model, args.photos),
+            "photos": photo_agreement(args.base, model, args.photos, args.sheet),
         },
     )
     args.out.parent.mkdir(parents=True, exist_ok=True)

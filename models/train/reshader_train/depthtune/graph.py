@@ -61,9 +61,15 @@ class DepthGraph(torch.nn.Module):
 
     @classmethod
     def load(cls, path: Path) -> DepthGraph:
+        from google.protobuf.message import DecodeError
+
         try:
-            return cls(onnx.load(str(path)))
-        except (OSError, onnx.onnx_cpp2py_export.checker.ValidationError) as err:
+            model = onnx.load(str(path))
+        except (OSError, DecodeError) as err:
+            raise GraphError(f"{path}: not a readable ONNX file ({err})") from err
+        try:
+            return cls(model)
+        except GraphError as err:
             raise GraphError(f"{path}: {err}") from err
 
     def forward(self, image: torch.Tensor) -> torch.Tensor:

@@ -71,7 +71,7 @@ def _sha256(path: Path) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest()
 
 
-def _write_atomic(path: Path, data: bytes) -> None:
+def write_atomic(path: Path, data: bytes) -> None:
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
     try:
         with os.fdopen(fd, "wb") as f:
@@ -213,8 +213,8 @@ def convert(
         for path, manifest in staged:
             os.replace(path, out / path.name)
             text = json.dumps(manifest, indent=2) + "\n"
-            _write_atomic(out / f"{path.stem}.json", text.encode())
-        _write_atomic(out / "LICENSE", licence.read_bytes())
+            write_atomic(out / f"{path.stem}.json", text.encode())
+        write_atomic(out / "LICENSE", licence.read_bytes())
     return [m for _, m in staged]
 
 

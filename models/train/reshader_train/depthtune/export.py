@@ -15,9 +15,7 @@ import argparse
 import hashlib
 import io
 import json
-import os
 import sys
-import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -25,8 +23,9 @@ import onnx
 import torch
 from onnx import numpy_helper
 
+from ..depthconv.command import write_atomic
 from ..depthconv.preprocess import load_rgb, network_input
-from .graph import DepthGraph, GraphError, _key
+from .graph import DepthGraph, GraphError, weight_key
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -60,18 +59,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
 
 
-def _write_atomic(path: Path, data: bytes) -> None:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
-    with os.fdopen(fd, "wb") as f:
-        f.write(data)
-    os.chmod(tmp, 0o644)
-    os.replace(tmp, path)
-
-
 def tuned_model(base: Path, weights: dict[str, torch.Tensor]) -> onnx.ModelProto:
     model = onnx.load(str(base))
     names = DepthGraph(model).arrays().keys()
-    missing = [n for n in names if _key(n) not in weights]
+    missing = [n for n in names if weight_key(n) not in weights]
     if missing or len(weights) != len(names):
         raise GraphError(
             f"checkpoint does not fit {base}: {len(missing)} weights missing, "
@@ -79,7 +70,7 @@ def tuned_model(base: Path, weights: dict[str, torch.Tensor]) -> onnx.ModelProto
         )
     for init in model.graph.initializer:
         if init.name in names:
-            array = weights[_key(init.name)].cpu().numpy().astype(np.float32)
+            array = weights[weight_key(init.name)].cpu().numpy().astype(np.float32)
             init.CopyFrom(numpy_helper.from_array(array, init.name))
     onnx.checker.check_model(model)
     return model
@@ -99,7 +90,7 @@ def _write_sheet(path: Path, rows: list[np.ndarray]) -> None:
     padded = [np.pad(r, ((0, 0), (0, width - r.shape[1]), (0, 0))) for r in rows]
     buf = io.BytesIO()
     Image.fromarray(np.concatenate(padded, 0)).save(buf, format="PNG")
-    _write_atomic(path, buf.getvalue())
+    write_atomic(path, buf.getvalue())
 
 
 def photo_agreement(
@@ -162,8 +153,8 @@ def export(args) -> None:
         },
     )
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    _write_atomic(args.out, data)
-    _write_atomic(args.out.with_suffix(".json"), (json.dumps(manifest, indent=2) + "\n").encode())
+    write_atomic(args.out, data)
+    write_atomic(args.out.with_suffix(".json"), (json.dumps(manifest, indent=2) + "\n").encode())
     print(f"export-depth: wrote {args.out} and {args.out.with_suffix('.json')}")
 
 

@@ -28,7 +28,8 @@ def _attrs(node) -> dict:
     return {a.name: onnx.helper.get_attribute_value(a) for a in node.attribute}
 
 
-def _key(name: str) -> str:
+def weight_key(name: str) -> str:
+    """An initializer's name as a ParameterDict key, which may not contain dots."""
     return name.replace(".", "_")
 
 
@@ -47,7 +48,7 @@ class DepthGraph(torch.nn.Module):
                 raise GraphError(f"unsupported op {node.op_type} ({node.name or node.output[0]})")
             if node.op_type == "Conv":
                 for name in node.input[1:]:
-                    self.weights[_key(name)] = torch.nn.Parameter(
+                    self.weights[weight_key(name)] = torch.nn.Parameter(
                         torch.from_numpy(np.array(consts[name], dtype=np.float32))
                     )
             elif node.op_type == "Clip":
@@ -78,8 +79,8 @@ class DepthGraph(torch.nn.Module):
         for op, inputs, output, attrs in self.steps:
             x = blobs[inputs[0]]
             if op == "Conv":
-                w = self.weights[_key(inputs[1])]
-                b = self.weights[_key(inputs[2])] if len(inputs) > 2 else None
+                w = self.weights[weight_key(inputs[1])]
+                b = self.weights[weight_key(inputs[2])] if len(inputs) > 2 else None
                 pads = attrs.get("pads", [0, 0, 0, 0])
                 if pads[0] != pads[2] or pads[1] != pads[3]:
                     x = F.pad(x, (pads[1], pads[3], pads[0], pads[2]))
@@ -110,5 +111,5 @@ class DepthGraph(torch.nn.Module):
         for op, inputs, _, _ in self.steps:
             if op == "Conv":
                 for name in inputs[1:]:
-                    names[name] = self.weights[_key(name)].detach().cpu().numpy()
+                    names[name] = self.weights[weight_key(name)].detach().cpu().numpy()
         return names

@@ -23,6 +23,7 @@ import numpy as np
 import torch
 
 from ..data import DatasetError
+from ..train import atomic_write
 from .data import Cache, evaluation_image, example_folders, training_crop
 from .graph import DepthGraph, GraphError
 from .loss import depth_loss
@@ -107,9 +108,7 @@ def validate(net: DepthGraph, folders: list[Path], cache: Cache) -> dict:
 
 
 def _save(path: Path, state: dict) -> None:
-    tmp = path.with_name(f".{path.name}.tmp")
-    torch.save(state, tmp)
-    os.replace(tmp, path)
+    atomic_write(path, lambda tmp: torch.save(state, tmp))
 
 
 def train(args) -> None:

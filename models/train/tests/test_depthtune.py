@@ -75,7 +75,7 @@ def test_train_depth_resumes_and_export_writes_a_loadable_tuned_graph(depth_data
     assert [r["step"] for r in log] == [0, 1, 2, 3, 4]
     assert {"data", "grad"} <= set(log[-1]["val"])
     out = tmp_path / "tuned" / "depth-tuned-fp32.onnx"
-    photo, sheet = tmp_path / "photo.jpg", tmp_path / "sheet.png"
+    photo, sheet = tmp_path / "photo.jpg", tmp_path / "sheets" / "sheet.png"
     Image.fromarray(np.random.default_rng(2).integers(0, 255, (480, 640, 3), np.uint8)).save(photo)
     argv = ["export-depth", str(run / "step-000004.pt"), "--out", str(out), "--base", str(BASE),
             "--photos", str(photo), "--sheet", str(sheet)]  # fmt: skip

@@ -90,6 +90,7 @@ def _write_sheet(path: Path, rows: list[np.ndarray]) -> None:
     padded = [np.pad(r, ((0, 0), (0, width - r.shape[1]), (0, 0))) for r in rows]
     buf = io.BytesIO()
     Image.fromarray(np.concatenate(padded, 0)).save(buf, format="PNG")
+    path.parent.mkdir(parents=True, exist_ok=True)
     write_atomic(path, buf.getvalue())
 
 

@@ -103,6 +103,7 @@ def test_train_depth_names_a_bad_crop_and_a_missing_folder(depth_data, tmp_path,
     assert "multiples of 32" in capsys.readouterr().err
     assert main(["train-depth", "--data", str(tmp_path / "nothing"), *common]) == 2
     assert "nothing: dataset folder does not exist" in capsys.readouterr().err
+    assert not (tmp_path / "r").exists()  # nothing written for a run that cannot start
 
 
 def test_a_corrupt_or_foreign_base_graph_is_named(depth_data, tmp_path, capsys):

@@ -6,7 +6,7 @@
 use std::path::Path;
 
 use crate::depth::net::{
-    network_depth, photo_size, refined, DepthNet, DepthNetError, StageOptions,
+    network_depth, photo_size, refined, DepthNet, DepthNetError, NetChoice, StageOptions,
 };
 use crate::depth::refine::RefineOptions;
 use crate::depth::DepthMap;
@@ -66,12 +66,13 @@ pub fn coarsened(photo: &SrgbImage, truth: &DepthMap, factor: f64) -> DepthMap {
 /// `model` (its manifest or the .onnx beside it), else the shipped fp32 network, with
 /// `render`'s engine (tract, every core).
 pub fn load(model: Option<&Path>) -> Result<DepthNet, DepthNetError> {
-    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
-    let engine = crate::engine::by_name("tract", cores)?;
-    match model {
-        Some(path) => DepthNet::load(path, engine),
-        None => DepthNet::shipped(Precision::Fp32, engine),
+    NetChoice {
+        model: model.map(Path::to_path_buf),
+        precision: Precision::Fp32,
+        engine: "tract".into(),
+        threads: std::thread::available_parallelism().map_or(1, |n| n.get()),
     }
+    .load()
 }
 
 /// The network's depth for `photo`, aligned to `truth` over the `valid` pixels.

@@ -25,7 +25,7 @@ from onnx import numpy_helper
 
 from ..depthconv.command import write_atomic
 from ..depthconv.preprocess import load_rgb, network_input
-from .graph import DepthGraph, GraphError, weight_key
+from .graph import GraphError, learned_names, weight_key
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -61,7 +61,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def tuned_model(base: Path, weights: dict[str, torch.Tensor]) -> onnx.ModelProto:
     model = onnx.load(str(base))
-    names = DepthGraph(model).arrays().keys()
+    names = set(learned_names(model))
     missing = [n for n in names if weight_key(n) not in weights]
     if missing or len(weights) != len(names):
         raise GraphError(
@@ -90,7 +90,6 @@ def _write_sheet(path: Path, rows: list[np.ndarray]) -> None:
     padded = [np.pad(r, ((0, 0), (0, width - r.shape[1]), (0, 0))) for r in rows]
     buf = io.BytesIO()
     Image.fromarray(np.concatenate(padded, 0)).save(buf, format="PNG")
-    path.parent.mkdir(parents=True, exist_ok=True)
     write_atomic(path, buf.getvalue())
 
 
@@ -153,7 +152,6 @@ def export(args) -> None:
             "photos": photo_agreement(args.base, model, args.photos, args.sheet),
         },
     )
-    args.out.parent.mkdir(parents=True, exist_ok=True)
     write_atomic(args.out, data)
     write_atomic(args.out.with_suffix(".json"), (json.dumps(manifest, indent=2) + "\n").encode())
     print(f"export-depth: wrote {args.out} and {args.out.with_suffix('.json')}")

@@ -33,25 +33,33 @@ def weight_key(name: str) -> str:
     return name.replace(".", "_")
 
 
+def learned_names(model: onnx.ModelProto) -> list[str]:
+    """The initializers that learn: every convolution's weights and bias, in graph order."""
+    return [name for node in model.graph.node if node.op_type == "Conv" for name in node.input[1:]]
+
+
 class DepthGraph(torch.nn.Module):
     def __init__(self, model: onnx.ModelProto):
         super().__init__()
         graph = model.graph
         self.input_name = graph.input[0].name
         self.output_name = graph.output[0].name
-        consts = {t.name: numpy_helper.to_array(t) for t in graph.initializer}
-        self.weights = torch.nn.ParameterDict()
-        self.fixed: dict[str, torch.Tensor] = {}
-        self.steps = []
         for node in graph.node:
             if node.op_type not in OPS:
                 raise GraphError(f"unsupported op {node.op_type} ({node.name or node.output[0]})")
-            if node.op_type == "Conv":
-                for name in node.input[1:]:
-                    self.weights[weight_key(name)] = torch.nn.Parameter(
-                        torch.from_numpy(np.array(consts[name], dtype=np.float32))
-                    )
-            elif node.op_type == "Clip":
+        consts = {t.name: numpy_helper.to_array(t) for t in graph.initializer}
+        self.weights = torch.nn.ParameterDict(
+            {
+                weight_key(name): torch.nn.Parameter(
+                    torch.from_numpy(np.array(consts[name], dtype=np.float32))
+                )
+                for name in learned_names(model)
+            }
+        )
+        self.fixed: dict[str, torch.Tensor] = {}
+        self.steps = []
+        for node in graph.node:
+            if node.op_type == "Clip":
                 lo, hi = (float(consts[n]) for n in node.input[1:3])
                 self.fixed[node.output[0]] = torch.tensor([lo, hi])
             elif node.op_type == "Resize":
@@ -104,12 +112,3 @@ class DepthGraph(torch.nn.Module):
             else:
                 blobs[output] = x
         return blobs[self.output_name]
-
-    def arrays(self) -> dict[str, np.ndarray]:
-        """The convolutions' weights and biases by their initializer names."""
-        names = {}
-        for op, inputs, _, _ in self.steps:
-            if op == "Conv":
-                for name in inputs[1:]:
-                    names[name] = self.weights[weight_key(name)].detach().cpu().numpy()
-        return names

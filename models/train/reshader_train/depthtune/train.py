@@ -117,6 +117,8 @@ def train(args) -> None:
     net = DepthGraph.load(args.base).to(memory_format=torch.channels_last)
     base = {k: v.detach().clone() for k, v in net.weights.items()}
     opt = torch.optim.Adam(net.parameters(), lr=args.lr)
+    folders = example_folders(args.data)
+    val = example_folders([args.val])
     args.out.mkdir(parents=True, exist_ok=True)
     step, wall = 0, 0.0
     if (args.out / LAST).is_file():
@@ -127,8 +129,6 @@ def train(args) -> None:
         print(f"train-depth: resuming {args.out} at step {step}", flush=True)
     rng = np.random.default_rng([args.seed, step])
     cache = Cache()
-    folders = example_folders(args.data)
-    val = example_folders([args.val])
     command = shlex.join(["reshader-train", "train-depth", *sys.argv[2:]])
     print(
         f"train-depth: {len(folders)} training examples, {len(val)} validation, "

@@ -95,6 +95,29 @@ def test_train_depth_resumes_and_export_writes_a_loadable_tuned_graph(depth_data
         assert np.abs(net(torch.from_numpy(x)).numpy() - tuned).max() < 1e-4  # ... into the file
 
 
+def test_a_run_resumes_whatever_order_its_checkpoint_holds_the_weights_in(depth_data, tmp_path):
+    run = tmp_path / "run"
+    argv = ["train-depth", "--data", str(depth_data / "train"), "--val", str(depth_data / "val"),
+            "--out", str(run), "--base", str(BASE), "--crop", "32x32", "--batch", "2",
+            "--checkpoint-every", "2", "--val-every", "2", "--threads", "1"]  # fmt: skip
+    assert main([*argv, "--steps", "2"]) == 0
+    state = torch.load(run / "last.pt", weights_only=False)
+    names = list(state["weights"])
+    state["weights"] = {n: state["weights"][n] for n in reversed(names)}
+    moments = state["optimizer"]["state"]
+    state["optimizer"]["state"] = {len(names) - 1 - i: m for i, m in moments.items()}
+    torch.save(state, run / "last.pt")
+    with (run / "log.jsonl").open("a") as log:  # a step logged after the checkpoint, then killed
+        log.write(json.dumps({"step": 3, "loss": 1.0}) + "\n")
+    assert main([*argv, "--steps", "3"]) == 0
+    log = [json.loads(line) for line in (run / "log.jsonl").read_text().splitlines()]
+    assert [r["step"] for r in log] == [0, 1, 2, 3] and "val" in log[-1]
+    resumed = torch.load(run / "last.pt", weights_only=False)["optimizer"]["state"]
+    net = DepthGraph.load(BASE)
+    for i, (name, weight) in enumerate(net.weights.items()):
+        assert resumed[i]["exp_avg"].shape == weight.shape, name
+
+
 def test_train_depth_names_a_bad_crop_and_a_missing_folder(depth_data, tmp_path, capsys):
     common = ["--val", str(depth_data / "val"), "--out", str(tmp_path / "r"), "--base", str(BASE)]
     assert (

@@ -111,6 +111,30 @@ def _save(path: Path, state: dict) -> None:
     atomic_write(path, lambda tmp: torch.save(state, tmp))
 
 
+def _truncate_log(path: Path, step: int) -> None:
+    """Drops the records of steps after the checkpoint resumed from: they are run again."""
+    if path.is_file():
+        kept = [r for r in path.read_text().splitlines() if json.loads(r)["step"] <= step]
+        atomic_write(path, lambda tmp: Path(tmp).write_text("".join(r + "\n" for r in kept)))
+
+
+def _by_name(saved: dict, saved_names: list[str], names: list[str]) -> dict:
+    """An optimizer state saved with its parameters in one order, for another order.
+
+    Adam keeps its moments by parameter index; the order of the graph's weights has
+    changed between versions of this module, and a run resumed across such a change would
+    otherwise fail on the first step with mismatched shapes (or, worse, not fail)."""
+    index = {name: i for i, name in enumerate(saved_names)}
+    if sorted(index) != sorted(names):
+        raise ValueError("the checkpoint's weights are not this graph's")
+    moments = saved["state"]
+    (group,) = saved["param_groups"]
+    return {
+        "state": {i: moments[index[n]] for i, n in enumerate(names) if index[n] in moments},
+        "param_groups": [{**group, "params": list(range(len(names)))}],
+    }
+
+
 def train(args) -> None:
     crop = _crop(args.crop)
     torch.set_num_threads(args.threads or os.cpu_count() or 1)
@@ -124,8 +148,9 @@ def train(args) -> None:
     if (args.out / LAST).is_file():
         state = torch.load(args.out / LAST, weights_only=False)
         net.weights.load_state_dict(state["weights"])
-        opt.load_state_dict(state["optimizer"])
+        opt.load_state_dict(_by_name(state["optimizer"], list(state["weights"]), list(net.weights)))
         step, wall = state["step"], state["wall_time_s"]
+        _truncate_log(args.out / "log.jsonl", step)
         print(f"train-depth: resuming {args.out} at step {step}", flush=True)
     rng = np.random.default_rng([args.seed, step])
     cache = Cache()

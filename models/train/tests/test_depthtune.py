@@ -12,6 +12,7 @@ from PIL import Image
 
 from reshader_train.cli import main
 from reshader_train.data import DatasetError, load_example
+from reshader_train.depthtune.data import Pair, paint_decals, training_crop
 from reshader_train.depthtune.graph import DepthGraph
 from reshader_train.depthtune.loss import aligned, depth_loss
 from reshader_train.synthetic import write_exr
@@ -68,7 +69,8 @@ def test_train_depth_resumes_and_export_writes_a_loadable_tuned_graph(depth_data
     run = tmp_path / "run"
     argv = ["train-depth", "--data", str(depth_data / "train"), "--val", str(depth_data / "val"),
             "--out", str(run), "--base", str(BASE), "--crop", "32x32", "--batch", "2",
-            "--checkpoint-every", "2", "--val-every", "2", "--threads", "1"]  # fmt: skip
+            "--checkpoint-every", "2", "--val-every", "2", "--threads", "1",
+            "--decals", "0.5"]  # fmt: skip
     assert main([*argv, "--steps", "2"]) == 0
     assert main([*argv, "--steps", "4"]) == 0  # resumes from step 2
     log = [json.loads(line) for line in (run / "log.jsonl").read_text().splitlines()]
@@ -140,6 +142,21 @@ def test_a_corrupt_or_foreign_base_graph_is_named(depth_data, tmp_path, capsys):
     assert main([*argv[:-1], str(reshade)]) == 2
     assert "reshade-lite-fp32-decoder.onnx: unsupported op" in capsys.readouterr().err
     assert not (tmp_path / "r").exists()
+
+
+def test_decals_paint_patterns_without_touching_depth():
+    rng = np.random.default_rng(4)
+    painted = paint_decals(np.ones((96, 128, 3), np.float32), rng, 4)
+    assert painted.min() < 0.5 and (painted == 1).mean() > 0.3  # dark shapes, most untouched
+    pair = Pair(
+        np.full((96, 128, 3), 0.1, np.float16),
+        np.linspace(0.2, 1, 128 * 96, dtype=np.float32).reshape(96, 128),
+    )
+    for seed in range(4):
+        plain_rgb, plain = training_crop(pair, (64, 64), np.random.default_rng(seed))
+        rgb, disparity = training_crop(pair, (64, 64), np.random.default_rng(seed), decals=1.0)
+        assert np.array_equal(disparity, plain) or np.array_equal(disparity, plain[:, ::-1])
+        assert np.ptp(plain_rgb) == 0 and np.ptp(rgb) > 0.1
 
 
 def test_input_only_examples_are_refused_for_reshading(depth_data):

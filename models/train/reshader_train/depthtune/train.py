@@ -72,6 +72,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default=0.0,
         help="L2 pull towards the base weights, per weight (0: none)",
     )
+    p.add_argument(
+        "--decals",
+        type=float,
+        default=0.0,
+        help="share of crops with dark or bright shapes painted on them at their depth "
+        "(data.py): teaches that a pattern is not a shape (0: none)",
+    )
     p.add_argument("--checkpoint-every", type=int, default=250)
     p.add_argument("--val-every", type=int, default=500)
     p.add_argument(
@@ -173,7 +180,7 @@ def train(args) -> None:
         for group in opt.param_groups:
             group["lr"] = lr
         batch = [
-            training_crop(cache.get(folders[i]), crop, rng)
+            training_crop(cache.get(folders[i]), crop, rng, args.decals)
             for i in rng.integers(0, len(folders), args.batch)
         ]
         rgb = torch.from_numpy(np.stack([b[0] for b in batch])).contiguous(

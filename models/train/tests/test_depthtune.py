@@ -14,6 +14,7 @@ from reshader_train.cli import main
 from reshader_train.data import DatasetError, load_example
 from reshader_train.depthtune.data import Pair, paint_decals, training_crop
 from reshader_train.depthtune.graph import DepthGraph
+from reshader_train.depthtune.keep import keep_loss
 from reshader_train.depthtune.loss import aligned, depth_loss
 from reshader_train.synthetic import write_exr
 
@@ -157,6 +158,39 @@ def test_decals_paint_patterns_without_touching_depth():
         rgb, disparity = training_crop(pair, (64, 64), np.random.default_rng(seed), decals=1.0)
         assert np.array_equal(disparity, plain) or np.array_equal(disparity, plain[:, ::-1])
         assert np.ptp(plain_rgb) == 0 and np.ptp(rgb) > 0.1
+
+
+def test_keep_loss_charges_plates_not_sharpened_steps():
+    x = torch.arange(64.0)
+    ramp = (1 + ((x - 28) / 8).clamp(0, 1)).expand(1, 1, 64, 64)  # the base network's soft step
+    sharp = (1 + (x >= 32).float()).expand(1, 1, 64, 64)  # the same step, sharpened
+    plate = ramp.clone()
+    plate[..., 8:24, 8:20] += 0.5  # a window brought forward
+
+    def pixelwise(a):
+        return float((aligned(a[:, 0], ramp[:, 0]) - ramp[:, 0]).abs().mean() / ramp.mean())
+
+    assert float(keep_loss(ramp.log(), ramp.log())) < 1e-6
+    assert float(keep_loss((3 * ramp + 1).log(), ramp.log())) < 1e-5  # scale and shift are free
+    assert float(keep_loss(sharp.log(), ramp.log())) < 0.4 * pixelwise(sharp)
+    assert float(keep_loss(plate.log(), ramp.log())) > 0.8 * pixelwise(plate)
+
+
+def test_train_depth_keeps_photos_and_names_a_bad_one(depth_data, tmp_path, capsys):
+    photos = tmp_path / "photos"
+    photos.mkdir()
+    rng = np.random.default_rng(5)
+    Image.fromarray(rng.integers(0, 255, (48, 80, 3), np.uint8)).save(photos / "a.png")
+    run = tmp_path / "run"
+    argv = ["train-depth", "--data", str(depth_data / "train"), "--val", str(depth_data / "val"),
+            "--out", str(run), "--base", str(BASE), "--crop", "32x32", "--batch", "2",
+            "--steps", "1", "--threads", "1", "--keep-photos", str(photos)]  # fmt: skip
+    assert main(argv) == 0
+    (record,) = [json.loads(r) for r in (run / "log.jsonl").read_text().splitlines()][1:]
+    assert record["keep"] >= 0
+    (photos / "b.jpg").write_bytes(b"not a jpeg")
+    assert main([*argv, "--out", str(tmp_path / "run2")]) == 2  # the last --out counts
+    assert "b.jpg" in capsys.readouterr().err and not (tmp_path / "run2").exists()
 
 
 def test_input_only_examples_are_refused_for_reshading(depth_data):

@@ -26,6 +26,7 @@ from ..data import DatasetError
 from ..train import atomic_write
 from .data import Cache, evaluation_image, example_folders, training_crop
 from .graph import DepthGraph, GraphError
+from .keep import keep_loss, load_photos, photo_crop
 from .loss import depth_loss
 
 LAST = "last.pt"
@@ -79,6 +80,18 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="share of crops with dark or bright shapes painted on them at their depth "
         "(data.py): teaches that a pattern is not a shape (0: none)",
     )
+    p.add_argument(
+        "--keep-photos",
+        type=Path,
+        nargs="+",
+        default=None,
+        help="photos (files or folders of .jpg/.png) without depth on which the tuned "
+        "network keeps the base network's coarse shapes (keep.py)",
+    )
+    p.add_argument(
+        "--keep-weight", type=float, default=1.0, help="weight of the --keep-photos term"
+    )
+    p.add_argument("--keep-batch", type=int, default=2, help="--keep-photos crops per step")
     p.add_argument("--checkpoint-every", type=int, default=250)
     p.add_argument("--val-every", type=int, default=500)
     p.add_argument(
@@ -142,6 +155,23 @@ def _by_name(saved: dict, saved_names: list[str], names: list[str]) -> dict:
     }
 
 
+def _keep_term(net, reference, photos, crop, rng, args, parts: dict) -> torch.Tensor:
+    """keep.py's term on a batch of the photos' crops; its value goes into `parts`."""
+    x = torch.from_numpy(
+        np.stack(
+            [
+                photo_crop(photos[i], crop, rng)
+                for i in rng.integers(0, len(photos), args.keep_batch)
+            ]
+        )
+    ).contiguous(memory_format=torch.channels_last)
+    with torch.no_grad():
+        target = reference(x)
+    term = keep_loss(net(x), target)
+    parts["keep"] = float(term.detach())
+    return term
+
+
 def train(args) -> None:
     crop = _crop(args.crop)
     torch.set_num_threads(args.threads or os.cpu_count() or 1)
@@ -150,6 +180,8 @@ def train(args) -> None:
     opt = torch.optim.Adam(net.parameters(), lr=args.lr)
     folders = example_folders(args.data)
     val = example_folders([args.val])
+    keep = load_photos(args.keep_photos, crop) if args.keep_photos else []
+    reference = DepthGraph.load(args.base).eval() if keep else None
     args.out.mkdir(parents=True, exist_ok=True)
     step, wall = 0, 0.0
     if (args.out / LAST).is_file():
@@ -164,7 +196,7 @@ def train(args) -> None:
     command = shlex.join(["reshader-train", "train-depth", *sys.argv[2:]])
     print(
         f"train-depth: {len(folders)} training examples, {len(val)} validation, "
-        f"crops {crop[0]}x{crop[1]}",
+        f"{len(keep)} photos to keep, crops {crop[0]}x{crop[1]}",
         flush=True,
     )
     log = (args.out / "log.jsonl").open("a")
@@ -188,6 +220,10 @@ def train(args) -> None:
         )
         target = torch.from_numpy(np.stack([b[1] for b in batch]))
         loss, parts = depth_loss(net(rgb), target, args.grad_weight)
+        if keep:
+            loss = loss + args.keep_weight * _keep_term(
+                net, reference, keep, crop, rng, args, parts
+            )
         if args.anchor:
             loss = loss + args.anchor * sum(
                 ((w - base[k]) ** 2).sum() for k, w in net.weights.items()

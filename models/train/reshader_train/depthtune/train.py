@@ -5,7 +5,9 @@ scale-and-shift-invariant loss of `loss.py` on random crops, and keeps a checkpo
 `--checkpoint-every` steps (`RUN/step-NNNNNN.pt`, and `RUN/last.pt` to resume from: a run
 stopped at any moment continues where its last checkpoint was, with the same command).
 `--anchor` pulls the weights towards the shipped ones (L2, per weight), so that what the
-network knew about real photos is not traded away for the renders' look. Validation:
+network knew about real photos is not traded away for the renders' look; `--decals`
+paints patterns into the crops at their depth (data.py); `--keep-photos` keeps the base
+network's coarse shapes on photos without depth (keep.py). Validation:
 the aligned error on `--val` at the evaluation's tone mapping, whole images.
 """
 

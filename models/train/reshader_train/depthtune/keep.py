@@ -43,7 +43,7 @@ def photo_files(roots: list[Path]) -> list[Path]:
 
 
 def load_photos(roots: list[Path], crop: tuple[int, int]) -> list[np.ndarray]:
-    """Each photo as uint8 RGB, area-averaged so that its longer side is LONG_SIDE."""
+    """Each photo as uint8 RGB, area-averaged so that its longer side is at most LONG_SIDE."""
     photos = []
     for path in photo_files(roots):
         try:

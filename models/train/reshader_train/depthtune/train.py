@@ -157,15 +157,10 @@ def _by_name(saved: dict, saved_names: list[str], names: list[str]) -> dict:
     }
 
 
-def _keep_term(net, reference, photos, crop, rng, args, parts: dict) -> torch.Tensor:
+def _keep_term(net, reference, photos, crop, batch: int, rng, parts: dict) -> torch.Tensor:
     """keep.py's term on a batch of the photos' crops; its value goes into `parts`."""
     x = torch.from_numpy(
-        np.stack(
-            [
-                photo_crop(photos[i], crop, rng)
-                for i in rng.integers(0, len(photos), args.keep_batch)
-            ]
-        )
+        np.stack([photo_crop(photos[i], crop, rng) for i in rng.integers(0, len(photos), batch)])
     ).contiguous(memory_format=torch.channels_last)
     with torch.no_grad():
         target = reference(x)
@@ -224,7 +219,7 @@ def train(args) -> None:
         loss, parts = depth_loss(net(rgb), target, args.grad_weight)
         if keep:
             loss = loss + args.keep_weight * _keep_term(
-                net, reference, keep, crop, rng, args, parts
+                net, reference, keep, crop, args.keep_batch, rng, parts
             )
         if args.anchor:
             loss = loss + args.anchor * sum(

@@ -65,11 +65,11 @@ fn render_without_depth_runs_the_shipped_network() {
         depth["model"]
             .as_str()
             .unwrap()
-            .starts_with("tiefenrausch-fp32"),
+            .starts_with("tiefenrausch-tuned-fp32"),
         "{depth}"
     );
     assert_eq!(depth["precision"], "fp32");
-    let onnx = repo("models/depth/tiefenrausch-fp32.onnx");
+    let onnx = repo("models/depth/tiefenrausch-tuned-fp32.onnx");
     let sha = reshader::io::record::sha256_file(&onnx).unwrap();
     assert_eq!(depth["model_file"]["sha256"], sha.as_str());
     assert_eq!(depth["native_size"], serde_json::json!([288, 384]));

@@ -126,8 +126,10 @@ impl std::str::FromStr for DepthInput {
 #[derive(Clone, Debug, Args)]
 pub struct DepthStageArgs {
     /// Depth model: an .onnx file with its .json manifest beside it (same stem), or the
-    /// manifest. Default: the shipped Tiefenrausch model (models/depth, found in the
-    /// working directory or beside the binary; or the directory $RESHADER_DEPTH_MODELS).
+    /// manifest. Default: the shipped Tiefenrausch model (models/depth: the tuned
+    /// tiefenrausch-tuned-fp32, or the original tiefenrausch-int8 at --depth-precision
+    /// int8; found in the working directory or beside the binary, or in the directory
+    /// $RESHADER_DEPTH_MODELS).
     #[arg(long)]
     pub depth_model: Option<PathBuf>,
     /// Inference engine for the depth network: tract, or ort (needs --features ort).
@@ -168,7 +170,8 @@ impl DepthStageArgs {
 #[derive(Clone, Debug, Args)]
 #[command(next_help_heading = "Depth estimation (when no depth file is given)")]
 pub struct EstimateArgs {
-    /// Precision of the shipped depth model: fp32 (faster in tract) or int8 (smaller).
+    /// Precision of the shipped depth model: fp32 (faster in tract, and tuned on renders
+    /// for cleaner depth edges) or int8 (smaller; the original, untuned network).
     #[arg(long, default_value = "fp32", value_parser = parse_depth_precision)]
     pub depth_precision: Precision,
     #[command(flatten)]

@@ -42,8 +42,16 @@ use crate::io::record::Timings;
 /// Where the shipped depth models live, relative to the working directory or the source
 /// tree the binary was built from.
 pub const DEFAULT_MODEL_DIR: &str = "models/depth";
-/// The shipped model's file stem; the precision is appended (`tiefenrausch-int8`).
-pub const DEFAULT_MODEL: &str = "tiefenrausch";
+/// The shipped model at `precision`, as the stem of its manifest in [`DEFAULT_MODEL_DIR`].
+/// fp32 is Tiefenrausch fine-tuned on renders; int8 stays the original network, because
+/// most of the tuning's weight changes are finer than its 8-bit steps and round away
+/// (models/depth/README.md).
+pub fn shipped_model(precision: Precision) -> String {
+    match precision {
+        Precision::Fp32 => "tiefenrausch-tuned-fp32".into(),
+        other => format!("tiefenrausch-{other}"),
+    }
+}
 /// Largest network input side accepted from a manifest: beyond it a typo, not a model.
 const MAX_INPUT_SIDE: usize = 4096;
 
@@ -129,7 +137,7 @@ impl DepthNet {
     /// The shipped model at `precision`, found in `$RESHADER_DEPTH_MODELS`, else in
     /// `models/depth` where [`crate::engine::locate::model_dirs`] looks.
     pub fn shipped(precision: Precision, engine: Arc<dyn Engine>) -> Result<Self, DepthNetError> {
-        let file = format!("{DEFAULT_MODEL}-{precision}.json");
+        let file = format!("{}.json", shipped_model(precision));
         let mut dirs = crate::engine::locate::model_dirs("depth");
         if let Some(dir) = std::env::var_os("RESHADER_DEPTH_MODELS") {
             dirs.insert(0, PathBuf::from(dir));
@@ -341,7 +349,7 @@ impl DepthEstimator {
     pub fn describe(&self) -> String {
         let model = match &self.choice.model {
             Some(path) => path.display().to_string(),
-            None => format!("{DEFAULT_MODEL}-{}", self.choice.precision),
+            None => shipped_model(self.choice.precision),
         };
         format!(
             "depth {:?} model {model} near {} budget {} refine {:?}",

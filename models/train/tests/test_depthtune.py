@@ -5,20 +5,24 @@ import json
 from pathlib import Path
 
 import numpy as np
+import onnx
 import onnxruntime as ort
 import pytest
 import torch
+from onnx import numpy_helper
 from PIL import Image
 
 from reshader_train.cli import main
 from reshader_train.data import DatasetError, load_example
 from reshader_train.depthtune.data import Pair, paint_decals, training_crop
+from reshader_train.depthtune.export import quantised_model
 from reshader_train.depthtune.graph import DepthGraph
 from reshader_train.depthtune.keep import keep_loss
 from reshader_train.depthtune.loss import aligned, depth_loss
 from reshader_train.synthetic import write_exr
 
 BASE = Path(__file__).resolve().parents[2] / "depth" / "tiefenrausch-fp32.onnx"
+INT8 = BASE.with_name("tiefenrausch-int8.onnx")
 
 
 def _example(folder: Path, rng, size=(64, 64)) -> None:
@@ -96,6 +100,30 @@ def test_train_depth_resumes_and_export_writes_a_loadable_tuned_graph(depth_data
     net.weights.load_state_dict(torch.load(run / "step-000004.pt", weights_only=False)["weights"])
     with torch.no_grad():
         assert np.abs(net(torch.from_numpy(x)).numpy() - tuned).max() < 1e-4  # ... into the file
+    halfway = tmp_path / "halfway-fp32.onnx"
+    argv = ["export-depth", str(run / "step-000004.pt"), "--out", str(halfway), "--base", str(BASE),
+            "--int8", "--int8-base", str(INT8), "--strength", "0.5"]  # fmt: skip
+    assert main(argv) == 0
+    (half,) = ort.InferenceSession(str(halfway)).run(None, {"image": x})
+    assert 0 < np.abs(half - base).max() < np.abs(tuned - base).max()
+    assert json.loads(halfway.with_suffix(".json").read_text())["training"]["strength"] == 0.5
+    (half8,) = ort.InferenceSession(str(tmp_path / "halfway-int8.onnx")).run(None, {"image": x})
+    # the same weights in 8 bits (the shipped int8 and fp32 graphs agree at 0.97 on this noise)
+    assert np.corrcoef(half8.ravel(), half.ravel())[0, 1] > 0.93
+    manifest8 = json.loads((tmp_path / "halfway-int8.json").read_text())
+    assert manifest8["precision"] == "int8" and manifest8["file"] == "halfway-int8.onnx"
+    assert main([*argv[:-1], "1.5"]) == 2  # outside 0..1: refused
+    assert main([*argv[:3], str(tmp_path / "no-precision.onnx"), *argv[4:]]) == 2
+    assert not (tmp_path / "no-precision.onnx").exists()
+
+
+def test_the_shipped_fp32_graph_quantises_back_to_the_shipped_int8_graph():
+    model, clipped = quantised_model(INT8, onnx.load(BASE))
+    shipped = onnx.load(INT8)
+    assert clipped == 0
+    ours = {i.name: numpy_helper.to_array(i) for i in model.graph.initializer}
+    for init in shipped.graph.initializer:
+        assert np.array_equal(ours[init.name], numpy_helper.to_array(init)), init.name
 
 
 def test_a_run_resumes_whatever_order_its_checkpoint_holds_the_weights_in(depth_data, tmp_path):

@@ -30,7 +30,7 @@ pub(super) fn peer_rows(
     let mut jobs = Vec::new();
     let (dw, dh) = ctx.depth.network_size(args.synthetic.0, args.synthetic.1)?;
     for precision in [Precision::Int8, Precision::Fp32] {
-        let file = format!("{}-{precision}.json", crate::depth::net::DEFAULT_MODEL);
+        let file = format!("{}.json", crate::depth::net::shipped_model(precision));
         let path = crate::engine::locate::model_dirs("depth")
             .into_iter()
             .map(|d| d.join(&file))

@@ -44,6 +44,26 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--version", default="1.1.0")
     p.add_argument(
+        "--strength",
+        type=float,
+        default=1.0,
+        help="how much of the tuning's change to keep: each weight becomes base + "
+        "STRENGTH x (tuned - base); 1 writes the checkpoint as it is, 0 the base "
+        "(interpolating towards the base keeps more of its behaviour on real photos)",
+    )
+    p.add_argument(
+        "--int8",
+        action="store_true",
+        help="also write the int8 graph (QLinearConv) beside --out, its name with int8 for "
+        "fp32: the tuned weights quantised at --int8-base's scales and zero points",
+    )
+    p.add_argument(
+        "--int8-base",
+        type=Path,
+        default=Path("models/depth/tiefenrausch-int8.onnx"),
+        help="the int8 form of --base (its manifest beside it)",
+    )
+    p.add_argument(
         "--photos",
         type=Path,
         nargs="*",
@@ -59,7 +79,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
 
 
-def tuned_model(base: Path, weights: dict[str, torch.Tensor]) -> onnx.ModelProto:
+def tuned_model(
+    base: Path, weights: dict[str, torch.Tensor], strength: float = 1.0
+) -> onnx.ModelProto:
+    """The base graph with the checkpoint's weights, or with the fraction `strength` of
+    their change from the base's."""
     model = onnx.load(str(base))
     names = set(learned_names(model))
     missing = [n for n in names if weight_key(n) not in weights]
@@ -70,10 +94,40 @@ def tuned_model(base: Path, weights: dict[str, torch.Tensor]) -> onnx.ModelProto
         )
     for init in model.graph.initializer:
         if init.name in names:
-            array = weights[weight_key(init.name)].cpu().numpy().astype(np.float32)
+            tuned = weights[weight_key(init.name)].cpu().numpy().astype(np.float32)
+            start = numpy_helper.to_array(init).astype(np.float32)
+            array = tuned if strength == 1.0 else start + np.float32(strength) * (tuned - start)
             init.CopyFrom(numpy_helper.from_array(array, init.name))
     onnx.checker.check_model(model)
     return model
+
+
+def quantised_model(int8_base: Path, fp32: onnx.ModelProto) -> tuple[onnx.ModelProto, int]:
+    """`int8_base` with each QLinearConv's weights and bias taken from the fp32 graph's
+    convolution of the same names, quantised at the base's own scales and zero points
+    (the base's fp32 graph gives the base's int8 graph back exactly). Also returns how
+    many weights fell outside the 8-bit range and were clipped."""
+    model = onnx.load(str(int8_base))
+    floats = {i.name: numpy_helper.to_array(i) for i in fp32.graph.initializer}
+    inits = {i.name: i for i in model.graph.initializer}
+    clipped = 0
+
+    def scalar(name: str) -> float:
+        return float(numpy_helper.to_array(inits[name]))
+
+    for node in (n for n in model.graph.node if n.op_type == "QLinearConv"):
+        x_scale, w, w_scale, w_zero = node.input[1], node.input[3], node.input[4], node.input[5]
+        if w not in floats:
+            raise GraphError(f"{int8_base}: {w} has no convolution of that name in the fp32 graph")
+        q = np.round(floats[w] / scalar(w_scale)) + scalar(w_zero)
+        clipped += int(((q < 0) | (q > 255)).sum())
+        inits[w].CopyFrom(numpy_helper.from_array(np.clip(q, 0, 255).astype(np.uint8), w))
+        if len(node.input) > 8 and node.input[8]:
+            b = node.input[8]
+            q_bias = np.round(floats[b] / (scalar(x_scale) * scalar(w_scale)))
+            inits[b].CopyFrom(numpy_helper.from_array(q_bias.astype(np.int32), b))
+    onnx.checker.check_model(model)
+    return model, clipped
 
 
 def _grey(disparity: np.ndarray) -> np.ndarray:
@@ -94,7 +148,10 @@ def _write_sheet(path: Path, rows: list[np.ndarray]) -> None:
 
 
 def photo_agreement(
-    base: Path, tuned: onnx.ModelProto, photos: list[Path], sheet: Path | None = None
+    base: Path | onnx.ModelProto,
+    tuned: onnx.ModelProto,
+    photos: list[Path],
+    sheet: Path | None = None,
 ) -> list[dict]:
     """How far the tuned graph moved each photo's disparity from the base graph's; with
     `sheet`, a PNG with one row per photo: the network's input, the base's disparity and
@@ -102,8 +159,11 @@ def photo_agreement(
     import onnxruntime as ort
 
     sessions = [
-        ort.InferenceSession(str(base), providers=["CPUExecutionProvider"]),
-        ort.InferenceSession(tuned.SerializeToString(), providers=["CPUExecutionProvider"]),
+        ort.InferenceSession(
+            str(m) if isinstance(m, Path) else m.SerializeToString(),
+            providers=["CPUExecutionProvider"],
+        )
+        for m in (base, tuned)
     ]
     rows, tiles = [], []
     for photo in photos:
@@ -127,34 +187,77 @@ def photo_agreement(
     return rows
 
 
-def export(args) -> None:
-    state = torch.load(args.checkpoint, weights_only=False)
-    model = tuned_model(args.base, state["weights"])
-    manifest = json.loads(args.base.with_suffix(".json").read_text())
-    data = model.SerializeToString()
+def _manifest(base: Path, out: Path, data: bytes, training: dict, validation: dict) -> bytes:
+    manifest = json.loads(base.with_suffix(".json").read_text())
     manifest.update(
-        name=args.out.stem,
-        version=args.version,
-        file=args.out.name,
+        name=out.stem,
+        version=training.pop("version"),
+        file=out.name,
         sha256=hashlib.sha256(data).hexdigest(),
-        training={
-            "from": f"{manifest['name']} {manifest['version']}",
-            "command": state["command"],
-            "steps": state["step"],
-            "wall_time_s": round(state["wall_time_s"]),
-            "examples": state["examples"],
-            "checkpoint": str(args.checkpoint),
-        },
+        training={"from": f"{manifest['name']} {manifest['version']}", **training},
         validation={
             "engine": "onnxruntime CPU",
-            "metric": "disparity exp(output) of this graph against the base graph's, after an "
-            "affine fit: Pearson correlation and mean relative difference",
-            "photos": photo_agreement(args.base, model, args.photos, args.sheet),
+            "metric": "disparity exp(output) of this graph against the reference graph's, "
+            "after an affine fit: Pearson correlation and mean relative difference",
+            **validation,
         },
     )
-    write_atomic(args.out, data)
-    write_atomic(args.out.with_suffix(".json"), (json.dumps(manifest, indent=2) + "\n").encode())
-    print(f"export-depth: wrote {args.out} and {args.out.with_suffix('.json')}")
+    return (json.dumps(manifest, indent=2) + "\n").encode()
+
+
+def export(args) -> None:
+    state = torch.load(args.checkpoint, weights_only=False)
+    if not 0.0 <= args.strength <= 1.0:
+        raise ValueError(f"--strength {args.strength} is outside 0..1")
+    if args.int8 and not args.out.stem.endswith("fp32"):
+        raise ValueError(
+            f"--int8 names its file after --out, whose name must end in fp32: {args.out}"
+        )
+    model = tuned_model(args.base, state["weights"], args.strength)
+    training = {
+        "version": args.version,
+        "command": state["command"],
+        "steps": state["step"],
+        "wall_time_s": round(state["wall_time_s"]),
+        "examples": state["examples"],
+        "checkpoint": str(args.checkpoint),
+        "strength": args.strength,
+    }
+    data = model.SerializeToString()
+    files = {
+        args.out: data,
+        args.out.with_suffix(".json"): _manifest(
+            args.base,
+            args.out,
+            data,
+            dict(training),
+            {
+                "reference": f"{args.base.name} (the graph tuned)",
+                "photos": photo_agreement(args.base, model, args.photos, args.sheet),
+            },
+        ),
+    }
+    if args.int8:
+        int8, clipped = quantised_model(args.int8_base, model)
+        out8 = args.out.with_name(args.out.stem[: -len("fp32")] + "int8.onnx")
+        data8 = int8.SerializeToString()
+        files[out8] = data8
+        files[out8.with_suffix(".json")] = _manifest(
+            args.int8_base,
+            out8,
+            data8,
+            {
+                **training,
+                "quantised": f"at {args.int8_base.name}'s scales; {clipped} weights clipped",
+            },
+            {
+                "reference": f"{args.out.name} (the same weights in fp32)",
+                "photos": photo_agreement(model, int8, args.photos),
+            },
+        )
+    for path, content in files.items():
+        write_atomic(path, content)
+    print("export-depth: wrote " + ", ".join(str(p) for p in files))
 
 
 def run(args) -> int:

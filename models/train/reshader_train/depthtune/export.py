@@ -187,11 +187,14 @@ def photo_agreement(
     return rows
 
 
-def _manifest(base: Path, out: Path, data: bytes, training: dict, validation: dict) -> bytes:
+def _manifest(
+    base: Path, out: Path, data: bytes, version: str, training: dict, validation: dict
+) -> bytes:
+    """`base`'s manifest made `out`'s: name, file, sha256, version, training, validation."""
     manifest = json.loads(base.with_suffix(".json").read_text())
     manifest.update(
         name=out.stem,
-        version=training.pop("version"),
+        version=version,
         file=out.name,
         sha256=hashlib.sha256(data).hexdigest(),
         training={"from": f"{manifest['name']} {manifest['version']}", **training},
@@ -215,7 +218,6 @@ def export(args) -> None:
         )
     model = tuned_model(args.base, state["weights"], args.strength)
     training = {
-        "version": args.version,
         "command": state["command"],
         "steps": state["step"],
         "wall_time_s": round(state["wall_time_s"]),
@@ -230,7 +232,8 @@ def export(args) -> None:
             args.base,
             args.out,
             data,
-            dict(training),
+            args.version,
+            training,
             {
                 "reference": f"{args.base.name} (the graph tuned)",
                 "photos": photo_agreement(args.base, model, args.photos, args.sheet),
@@ -246,6 +249,7 @@ def export(args) -> None:
             args.int8_base,
             out8,
             data8,
+            args.version,
             {
                 **training,
                 "quantised": f"at {args.int8_base.name}'s scales; {clipped} weights clipped",

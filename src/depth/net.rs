@@ -52,6 +52,27 @@ pub fn shipped_model(precision: Precision) -> String {
         other => format!("tiefenrausch-{other}"),
     }
 }
+
+/// The manifest of the shipped model at `precision`: in `$RESHADER_DEPTH_MODELS`, else in
+/// `models/depth` where [`crate::engine::locate::model_dirs`] looks.
+pub fn shipped_manifest(precision: Precision) -> Result<PathBuf, DepthNetError> {
+    let file = format!("{}.json", shipped_model(precision));
+    let mut dirs = crate::engine::locate::model_dirs("depth");
+    if let Some(dir) = std::env::var_os("RESHADER_DEPTH_MODELS") {
+        dirs.insert(0, PathBuf::from(dir));
+    }
+    let candidates: Vec<PathBuf> = dirs.iter().map(|d| d.join(&file)).collect();
+    match candidates.iter().find(|p| p.is_file()) {
+        Some(p) => Ok(p.clone()),
+        None => Err(DepthNetError::NotFound {
+            tried: candidates
+                .iter()
+                .map(|p| p.display().to_string())
+                .collect::<Vec<_>>()
+                .join(", "),
+        }),
+    }
+}
 /// Largest network input side accepted from a manifest: beyond it a typo, not a model.
 const MAX_INPUT_SIDE: usize = 4096;
 
@@ -137,22 +158,7 @@ impl DepthNet {
     /// The shipped model at `precision`, found in `$RESHADER_DEPTH_MODELS`, else in
     /// `models/depth` where [`crate::engine::locate::model_dirs`] looks.
     pub fn shipped(precision: Precision, engine: Arc<dyn Engine>) -> Result<Self, DepthNetError> {
-        let file = format!("{}.json", shipped_model(precision));
-        let mut dirs = crate::engine::locate::model_dirs("depth");
-        if let Some(dir) = std::env::var_os("RESHADER_DEPTH_MODELS") {
-            dirs.insert(0, PathBuf::from(dir));
-        }
-        let candidates: Vec<PathBuf> = dirs.iter().map(|d| d.join(&file)).collect();
-        match candidates.iter().find(|p| p.is_file()) {
-            Some(p) => Self::load(p, engine),
-            None => Err(DepthNetError::NotFound {
-                tried: candidates
-                    .iter()
-                    .map(|p| p.display().to_string())
-                    .collect::<Vec<_>>()
-                    .join(", "),
-            }),
-        }
+        Self::load(&shipped_manifest(precision)?, engine)
     }
 
     pub fn spec(&self) -> &DepthSpec {

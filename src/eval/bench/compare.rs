@@ -30,12 +30,7 @@ pub(super) fn peer_rows(
     let mut jobs = Vec::new();
     let (dw, dh) = ctx.depth.network_size(args.synthetic.0, args.synthetic.1)?;
     for precision in [Precision::Int8, Precision::Fp32] {
-        let file = format!("{}.json", crate::depth::net::shipped_model(precision));
-        let path = crate::engine::locate::model_dirs("depth")
-            .into_iter()
-            .map(|d| d.join(&file))
-            .find(|p| p.is_file())
-            .unwrap_or_else(|| Path::new("models/depth").join(&file));
+        let path = crate::depth::net::shipped_manifest(precision)?;
         let model = manifest::load_verified(&path)?;
         jobs.push(Job::for_manifest(
             &format!("depth {}", model.manifest.name),

@@ -221,11 +221,18 @@ fn manifest_contract_violations_name_the_field() {
 /// photo's network size (288×384), both precisions, as the runtime loads them (int8
 /// weights folded, rewrites applied). The onnxruntime side of the same comparison is
 /// `bench/profile_onnxruntime.py` (docs/benchmarks.md, "The depth network, operator by
-/// operator").
+/// operator"). Two threads, as the runtime runs it; `RESHADER_PROFILE_THREADS=1` shows
+/// which operators the second thread speeds up.
 #[test]
 #[ignore = "measurement, not a check: run with --release --ignored --nocapture"]
 fn profile_shipped_depth_network_in_tract() {
-    let engine = TractEngine::new(2);
+    let threads: usize = std::env::var("RESHADER_PROFILE_THREADS")
+        .map(|v| {
+            v.parse()
+                .expect("RESHADER_PROFILE_THREADS: a number of threads")
+        })
+        .unwrap_or(2);
+    let engine = TractEngine::new(threads);
     let input = reshader::engine::Tensor::new(
         vec![1, 3, 288, 384],
         (0..3 * 288 * 384)
@@ -245,7 +252,7 @@ fn profile_shipped_depth_network_in_tract() {
             .profile(source, &[("image", &input)], &["log_disparity"])
             .unwrap();
         let total: f64 = ops.iter().map(|(_, ms)| ms).sum();
-        println!("\ntiefenrausch-{precision}, 2 threads: {total:.1} ms\n\n| operator | ms | share |\n|---|---|---|");
+        println!("\ntiefenrausch-{precision}, {threads} thread(s): {total:.1} ms\n\n| operator | ms | share |\n|---|---|---|");
         for (op, ms) in &ops {
             println!("| {op} | {ms:.1} | {:.0}% |", 100.0 * ms / total);
         }

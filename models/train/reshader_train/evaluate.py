@@ -272,6 +272,7 @@ def evaluate_folder(
     key_spacing: float = 0.0,
     scale: float = 1.0,
     transpose: bool = False,
+    change_scale: float = 1.0,
 ) -> list[dict]:
     rows = []
     for folder in list_examples(root)[:limit]:
@@ -290,6 +291,8 @@ def evaluate_folder(
             )
         else:
             ours = reshade(net, s["image"], s["disparity"], s["camera"], s["rays"])
+        if change_scale != 1.0:
+            ours = (s["image"] + change_scale * (ours - s["image"])).clamp(0.0, 1.0)
         row = {"split": root.name, "scene": ex.scene, "example": ex.name}
         row["valid_values"] = int((s["mask"].expand_as(ours) > 0.5).sum())
         for method, img in (("input", s["image"]), ("ours", ours)):
@@ -439,6 +442,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="run the network on each image turned about its diagonal (camera x and y "
         "swapped) and turn its change back: what running it in another orientation costs",
     )
+    p.add_argument(
+        "--change-scale",
+        type=float,
+        default=1.0,
+        help="multiply each view's change (view - photo) by this before scoring: whether a "
+        "model that looks timid would score better bolder (default 1: as predicted)",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -462,6 +472,7 @@ def run(args: argparse.Namespace) -> int:
                 args.key_spacing,
                 args.scale,
                 args.transpose,
+                args.change_scale,
             )
     except ValueError as err:
         print(f"evaluate: {err}", file=sys.stderr)
@@ -480,6 +491,7 @@ def run(args: argparse.Namespace) -> int:
             "key_spacing": args.key_spacing,
             "scale": args.scale,
             "transpose": args.transpose,
+            "change_scale": args.change_scale,
             "lpips": lpips_note or "available",
             "splits": summary,
             "examples": [{k: v for k, v in r.items() if not k.startswith("_")} for r in rows],

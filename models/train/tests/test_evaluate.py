@@ -145,6 +145,25 @@ def test_evaluate_scores_the_target_asked_for(tmp_path, capsys):
     assert "has 3 target(s), no target 3" in capsys.readouterr().err
 
 
+def test_change_scale_scores_a_bolder_or_no_change(tmp_path):
+    val = write_dataset(tmp_path / "val", 2, 32, 40, seed=5)
+    cfg = net_config("4,8,8,16,16,16")
+    ckpt = tmp_path / "ckpt.pt"
+    torch.save({"model": ReshadeNet(cfg).state_dict(), "net_config": cfg.to_json()}, ckpt)
+    scores = {}
+    for scale in ("0", "1", "3"):
+        out = tmp_path / f"s{scale}.json"
+        argv = ["evaluate", "--checkpoint", str(ckpt), "--data", str(val), "--json", str(out),
+                "--threads", "1", "--change-scale", scale]  # fmt: skip
+        assert cli.main(argv) == 0
+        report = json.loads(out.read_text())
+        assert report["change_scale"] == float(scale)
+        scores[scale] = [(e["psnr_input"], e["psnr_ours"]) for e in report["examples"]]
+    # No change is the photo itself; three times the change scores otherwise than once.
+    assert all(ours == pytest.approx(photo) for photo, ours in scores["0"])
+    assert [o for _, o in scores["3"]] != pytest.approx([o for _, o in scores["1"]])
+
+
 def test_evaluate_rejects_missing_checkpoint(tmp_path, capsys):
     assert (
         cli.main(["evaluate", "--checkpoint", str(tmp_path / "x.pt"), "--data", str(tmp_path)]) == 2

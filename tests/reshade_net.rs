@@ -464,3 +464,45 @@ mod lobes {
         assert!(msg.contains("0x0"), "{msg}");
     }
 }
+
+#[test]
+fn a_view_changed_at_too_few_pixels_keeps_the_photo() {
+    let (image, _) = scene(64, 32);
+    let gated = |gate| {
+        let options = NetOptions {
+            gate,
+            ..Default::default()
+        };
+        reshade(&split(1, options), &image, &[CAMERA]).remove(0)
+    };
+    let predicted = gated(0.0);
+    let pixels = image.data().len() / 3;
+    let changed = predicted
+        .data()
+        .chunks_exact(3)
+        .zip(image.data().chunks_exact(3))
+        .filter(|(v, p)| v.iter().zip(*p).any(|(a, b)| (a - b).abs() > 1.0 / 255.0))
+        .count();
+    let share = changed as f64 / pixels as f64;
+    assert!(
+        share > 0.0 && share < 1.0,
+        "the fixture must change some pixels and not all: {share}"
+    );
+    assert_eq!(gated(share * 0.99), predicted);
+    assert_eq!(gated(share * 1.01 + 1e-9), image);
+}
+
+#[test]
+fn a_gate_outside_zero_to_one_is_refused() {
+    for gate in [-0.1, 1.5, f64::NAN] {
+        let path = manifest_path(Task::ReshadeEncoder, Precision::Fp32);
+        let options = NetOptions {
+            gate,
+            ..Default::default()
+        };
+        let err = NetReshader::load(&path, Precision::Fp32, tract(1), options)
+            .err()
+            .expect("refused");
+        assert!(err.to_string().contains("reshade gate"), "{err}");
+    }
+}

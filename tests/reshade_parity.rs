@@ -6,7 +6,7 @@
 use crate::reshade_support;
 
 use reshade_support::{
-    base64, f32s, fixture_dir, image_from_planar, manifest_path, max_abs_diff, tract,
+    base64, f32s, fixture_dir, image_from_planar, manifest_path, max_abs_diff, tract, ungated,
 };
 use reshader::depth::DepthMap;
 use reshader::engine::manifest::{Precision, Task};
@@ -78,7 +78,7 @@ fn check(task: Task, precision: Precision, engine: Arc<dyn Engine>) {
         &manifest_path(task, precision),
         precision,
         engine,
-        NetOptions::default(),
+        ungated(),
     )
     .unwrap();
     let prepared = net.prepare_photo(&image, &depth).unwrap();
@@ -131,7 +131,7 @@ fn the_input_camera_returns_the_photo() {
         .unwrap() as f32;
     let (image, depth) = inputs(&p);
     let path = manifest_path(Task::ReshadeEncoder, Precision::Fp32);
-    let net = NetReshader::load(&path, Precision::Fp32, tract(1), NetOptions::default()).unwrap();
+    let net = NetReshader::load(&path, Precision::Fp32, tract(1), ungated()).unwrap();
     let out = net
         .prepare_photo(&image, &depth)
         .unwrap()

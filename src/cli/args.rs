@@ -278,6 +278,12 @@ pub struct ReshadeArgs {
     /// head; for a directory, residual when it holds residual-head models, else lobes.
     #[arg(long, value_parser = keyword::<Head>())]
     pub head: Option<Head>,
+    /// Residual head: a view whose predicted change touches under this share of its
+    /// pixels by more than one 8-bit level keeps the photo exactly (the network's noise on
+    /// a view whose shading does not move, as in whole matte scenes); 0 keeps every view as
+    /// predicted (docs/reshading.md, "The gate").
+    #[arg(long, value_name = "SHARE", default_value_t = reshader::reshade::net::DEFAULT_VIEW_GATE)]
+    pub reshade_gate: f64,
 }
 
 impl ReshadeArgs {
@@ -293,6 +299,7 @@ impl ReshadeArgs {
             parallel_views: self.parallel_views,
             threads: self.reshade_threads,
             head: self.head,
+            gate: self.reshade_gate,
         }
     }
 

@@ -47,6 +47,15 @@ pub fn tract(threads: usize) -> Arc<dyn Engine> {
     engine::by_name("tract", threads).expect("tract is always built")
 }
 
+/// The runtime's options without the gate, so that every view is the network's own: what
+/// a comparison with PyTorch's outputs needs.
+pub fn ungated() -> reshader::reshade::net::NetOptions {
+    reshader::reshade::net::NetOptions {
+        gate: 0.0,
+        ..Default::default()
+    }
+}
+
 /// An N-D little-endian float32 `.npy` array: (shape, values).
 pub fn read_npy(path: &Path) -> (Vec<usize>, Vec<f32>) {
     let bytes = std::fs::read(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));

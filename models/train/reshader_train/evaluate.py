@@ -263,6 +263,21 @@ def target_sample(ex, target: int) -> dict:
     return {**rest, **picked}
 
 
+# One 8-bit level: the smallest change a display shows.
+LEVEL = 1.0 / 255.0
+
+
+def view_gate(image: torch.Tensor, view: torch.Tensor, fraction: float) -> torch.Tensor:
+    """`view`, or the photo `image` itself where under `fraction` of the pixels differ from
+    it by more than a level in any colour, as `render --reshade-gate` decides per view: a
+    change that small is the network's noise on a view whose shading does not move (whole
+    diffuse scenes), not a highlight. 0 keeps every view."""
+    if fraction <= 0.0:
+        return view
+    changed = ((view - image).abs().amax(dim=0) > LEVEL).float().mean()
+    return image if float(changed) < fraction else view
+
+
 def evaluate_folder(
     net: ReshadeNet,
     root: Path,
@@ -273,6 +288,7 @@ def evaluate_folder(
     scale: float = 1.0,
     transpose: bool = False,
     change_scale: float = 1.0,
+    gate: float = 0.0,
 ) -> list[dict]:
     rows = []
     for folder in list_examples(root)[:limit]:
@@ -293,6 +309,7 @@ def evaluate_folder(
             ours = reshade(net, s["image"], s["disparity"], s["camera"], s["rays"])
         if change_scale != 1.0:
             ours = (s["image"] + change_scale * (ours - s["image"])).clamp(0.0, 1.0)
+        ours = view_gate(s["image"], ours, gate)
         row = {"split": root.name, "scene": ex.scene, "example": ex.name}
         row["valid_values"] = int((s["mask"].expand_as(ours) > 0.5).sum())
         for method, img in (("input", s["image"]), ("ours", ours)):
@@ -449,6 +466,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="multiply each view's change (view - photo) by this before scoring: whether a "
         "model that looks timid would score better bolder (default 1: as predicted)",
     )
+    p.add_argument(
+        "--view-gate",
+        type=float,
+        default=0.0,
+        help="score each view as `render --reshade-gate F` makes it: the photo itself where "
+        "under F of its pixels change by more than a level (default 0: every view as "
+        "predicted; the runtime's default is 0.02)",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -473,6 +498,7 @@ def run(args: argparse.Namespace) -> int:
                 args.scale,
                 args.transpose,
                 args.change_scale,
+                args.view_gate,
             )
     except ValueError as err:
         print(f"evaluate: {err}", file=sys.stderr)
@@ -492,6 +518,7 @@ def run(args: argparse.Namespace) -> int:
             "scale": args.scale,
             "transpose": args.transpose,
             "change_scale": args.change_scale,
+            "view_gate": args.view_gate,
             "lpips": lpips_note or "available",
             "splits": summary,
             "examples": [{k: v for k, v in r.items() if not k.startswith("_")} for r in rows],

@@ -12,6 +12,7 @@ from reshader_train.evaluate import (
     masked_ssim,
     pad_to_multiple,
     summarise,
+    view_gate,
 )
 from reshader_train.model import ReshadeNet, net_config
 from reshader_train.synthetic import write_dataset
@@ -145,23 +146,37 @@ def test_evaluate_scores_the_target_asked_for(tmp_path, capsys):
     assert "has 3 target(s), no target 3" in capsys.readouterr().err
 
 
-def test_change_scale_scores_a_bolder_or_no_change(tmp_path):
+def test_change_scale_and_view_gate_score_a_bolder_or_no_change(tmp_path):
     val = write_dataset(tmp_path / "val", 2, 32, 40, seed=5)
     cfg = net_config("4,8,8,16,16,16")
     ckpt = tmp_path / "ckpt.pt"
     torch.save({"model": ReshadeNet(cfg).state_dict(), "net_config": cfg.to_json()}, ckpt)
     scores = {}
-    for scale in ("0", "1", "3"):
-        out = tmp_path / f"s{scale}.json"
+    for scale, gate in (("0", "0"), ("1", "0"), ("3", "0"), ("1", "1.01")):
+        out = tmp_path / f"s{scale}-g{gate}.json"
         argv = ["evaluate", "--checkpoint", str(ckpt), "--data", str(val), "--json", str(out),
-                "--threads", "1", "--change-scale", scale]  # fmt: skip
+                "--threads", "1", "--change-scale", scale, "--view-gate", gate]  # fmt: skip
         assert cli.main(argv) == 0
         report = json.loads(out.read_text())
-        assert report["change_scale"] == float(scale)
-        scores[scale] = [(e["psnr_input"], e["psnr_ours"]) for e in report["examples"]]
-    # No change is the photo itself; three times the change scores otherwise than once.
-    assert all(ours == pytest.approx(photo) for photo, ours in scores["0"])
-    assert [o for _, o in scores["3"]] != pytest.approx([o for _, o in scores["1"]])
+        assert (report["change_scale"], report["view_gate"]) == (float(scale), float(gate))
+        scores[scale, gate] = [(e["psnr_input"], e["psnr_ours"]) for e in report["examples"]]
+    # No change is the photo itself, and so is every view past a gate no view can pass;
+    # three times the change scores otherwise than once.
+    for key in (("0", "0"), ("1", "1.01")):
+        assert all(ours == pytest.approx(photo) for photo, ours in scores[key])
+    once = [o for _, o in scores["1", "0"]]
+    assert [o for _, o in scores["3", "0"]] != pytest.approx(once)
+    assert once != pytest.approx([p for p, _ in scores["1", "0"]])
+
+
+def test_the_view_gate_keeps_the_photo_where_few_pixels_change_by_a_level():
+    photo = torch.rand(3, 20, 20, generator=torch.Generator().manual_seed(3))
+    view = photo.clone()
+    view[1, :2, :] += 0.01  # 40 of 400 pixels (10 %) by two and a half levels
+    view[:, 5:, :] += 0.5 / 255  # the rest of the lower rows by half a level
+    assert view_gate(photo, view, 0.0) is view
+    assert view_gate(photo, view, 0.09) is view
+    assert view_gate(photo, view, 0.11) is photo
 
 
 def test_evaluate_rejects_missing_checkpoint(tmp_path, capsys):

@@ -38,6 +38,8 @@ pub struct ReshadeConfig {
     pub threads: Option<usize>,
     /// `None`: the model's own head (see [`ReshadeConfig::head_for`]).
     pub head: Option<Head>,
+    /// Residual head: views changed at under this share of their pixels keep the photo.
+    pub gate: f64,
 }
 
 impl Default for ReshadeConfig {
@@ -53,6 +55,7 @@ impl Default for ReshadeConfig {
             parallel_views: 1,
             threads: None,
             head: None,
+            gate: super::DEFAULT_VIEW_GATE,
         }
     }
 }
@@ -128,6 +131,7 @@ impl ReshadeConfig {
             batch: self.batch,
             parallel_views: self.parallel_views,
             max_offset: None,
+            gate: self.gate,
         }
     }
 

@@ -208,6 +208,19 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--threads", type=int, default=0, help="torch threads per rank (0: default)")
     p.add_argument("--device", default="auto", help="auto | cpu | cuda")
     p.add_argument(
+        "--bf16",
+        action="store_true",
+        help="run the network's forward pass in bfloat16 (torch.autocast): about twice the "
+        "steps per second on a CPU with AMX or AVX-512 BF16 (and on recent GPUs); the "
+        "weights, the optimiser, the loss and validation stay float32",
+    )
+    p.add_argument(
+        "--channels-last",
+        action="store_true",
+        help="lay the network's activations out channels-last, the layout oneDNN's CPU "
+        "kernels prefer (a further ~1.2x with --bf16 on one CPU thread)",
+    )
+    p.add_argument(
         "--loss-weights",
         default=str(LossWeights()),
         help="PIXEL,VGG,STYLE weights (default: the paper's 0.1,0.01,1; with VGG and STYLE 0 "
@@ -572,6 +585,23 @@ def check_teacher(folder: Path, cfg: NetConfig) -> None:
         )
 
 
+class Compute(NamedTuple):
+    """How a step computes the network: `--bf16` and `--channels-last`."""
+
+    bf16: bool = False
+    channels_last: bool = False
+
+    def batch(self, b: dict) -> dict:
+        """The batch's images in the layout the network was put in."""
+        if not self.channels_last:
+            return b
+        fmt = torch.channels_last
+        return {k: v.contiguous(memory_format=fmt) if v.dim() == 4 else v for k, v in b.items()}
+
+    def autocast(self, device: torch.device):
+        return torch.autocast(device.type, dtype=torch.bfloat16, enabled=self.bf16)
+
+
 class Teaching(NamedTuple):
     """How a step tells the network its teacher's fields (`field_loss`'s options)."""
 
@@ -592,17 +622,23 @@ def train_step(
     d: Dist,
     step: int,
     teach: Teaching | None = None,
+    compute: Compute | None = None,
 ):
     """One optimiser step. `teach`: batches carry fitted fields ("teacher"), and the
-    fields' distance from them (`field_loss`) is added at its weight."""
+    fields' distance from them (`field_loss`) is added at its weight. `compute`: the
+    forward pass's precision and layout; the losses are taken in float32."""
     for group in opt.param_groups:
         group["lr"] = lr * group.get("lr_scale", 1.0)
-    b = {k: v.to(d.device, non_blocking=True) for k, v in batch.items()}
+    compute = compute or Compute()
+    b = compute.batch({k: v.to(d.device, non_blocking=True) for k, v in batch.items()})
     many = "targets" in b  # (B, N, ...): N cameras per photo, one encoder pass
     camera = b["cameras"] if many else b["camera"]
-    pred = model(b["image"], b["disparity"], camera, b["rays"], fields=teach is not None)
+    with compute.autocast(d.device):
+        pred = model(b["image"], b["disparity"], camera, b["rays"], fields=teach is not None)
     if teach is not None:
         pred, fields = pred
+        fields = fields.float()
+    pred = pred.float()
     if many:
         loss, parts = multi_target_loss(
             criterion, pred, b["targets"], b["masks"], b["weights"], b["image"]
@@ -673,6 +709,9 @@ def train(args: argparse.Namespace) -> ReshadeNet:
             print(
                 f"initialised {count} of {total} parameters from {len(args.init_from)} ONNX file(s)"
             )
+    compute = Compute(args.bf16, args.channels_last)
+    if compute.channels_last:
+        net = net.to(memory_format=torch.channels_last)
     model = net
     if d.world > 1:
         ids = [d.device.index] if d.device.type == "cuda" else None
@@ -724,7 +763,7 @@ def train(args: argparse.Namespace) -> ReshadeNet:
                 if args.teacher
                 else None
             )
-            parts = train_step(model, criterion, opt, batch, lr, d, step, teach)
+            parts = train_step(model, criterion, opt, batch, lr, d, step, teach, compute)
             step += 1
             log.step(step, parts, lr, len(dataset))
             if d.main and (step % args.checkpoint_every == 0 or step == args.steps):

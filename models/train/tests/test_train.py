@@ -8,7 +8,7 @@ import torch
 from reshader_train import cli
 from reshader_train.data import list_examples
 from reshader_train.synthetic import write_dataset
-from reshader_train.train import lr_at, train
+from reshader_train.train import Compute, lr_at, train
 
 TINY = "4,8,8,16,16,16"
 
@@ -165,6 +165,26 @@ def test_pixel_only_training_records_its_loss(data, tmp_path):
     assert ckpt["pixel_loss"] == "l2"
     log = read_csv(run / "log.csv")
     assert all(float(r["vgg"]) == 0.0 and float(r["style"]) == 0.0 for r in log)
+
+
+def test_bf16_and_channels_last_train_float32_weights_from_a_bfloat16_forward(data, tmp_path):
+    compute = Compute(bf16=True, channels_last=True)
+    conv = torch.nn.Conv2d(3, 4, 3)
+    b = compute.batch({"image": torch.rand(1, 3, 8, 8), "camera": torch.rand(1, 3)})
+    assert b["image"].is_contiguous(memory_format=torch.channels_last)
+    assert b["camera"].shape == (1, 3)
+    with compute.autocast(torch.device("cpu")):
+        assert conv(b["image"]).dtype == torch.bfloat16
+    with Compute().autocast(torch.device("cpu")):
+        assert conv(b["image"]).dtype == torch.float32
+    weights = {}
+    for name, flags in (("fp32", {}), ("bf16", {"bf16": True, "channels_last": True})):
+        train(train_args(data, tmp_path / name, 3, **flags))
+        weights[name] = torch.load(tmp_path / name / "checkpoint.pt", weights_only=False)["model"]
+    assert all(v.dtype == torch.float32 for v in weights["bf16"].values() if v.is_floating_point())
+    # The same seed and steps: near the same weights, but not bit for bit.
+    a, b = weights["fp32"]["decoder.out.weight"], weights["bf16"]["decoder.out.weight"]
+    assert not torch.equal(a, b) and torch.allclose(a, b, atol=1e-2)
 
 
 def test_head_and_deadzone_reach_the_checkpoint(data, tmp_path):

@@ -59,6 +59,9 @@ pub enum PhotoError {
     },
 }
 
+/// One 8-bit level in [0, 1] values: the smallest change a display shows.
+pub const ONE_LEVEL: f32 = 1.0 / 255.0;
+
 /// RGB image whose values are sRGB-encoded (not linear) in [0, 1]: the colour space the
 /// reshading network is trained on, and the one PNG files store.
 #[derive(Clone, Debug, PartialEq)]

@@ -6,7 +6,7 @@ use image::RgbImage;
 use interleave::Board;
 
 use super::{reshade_views, BoardRig, PipelineError, Scene};
-use crate::io::photo::SrgbImage;
+use crate::io::photo::{SrgbImage, ONE_LEVEL};
 use crate::io::record::Timings;
 use crate::relocate::Relocator;
 use crate::reshade::{Reshader, TrainingFrame};
@@ -95,7 +95,7 @@ fn difference(a: &SrgbImage, b: &SrgbImage) -> (SrgbImage, f64, f64) {
             let (p, q) = (a.get(x, y), b.get(x, y));
             let d = [0, 1, 2].map(|c| (p[c] - q[c]).abs());
             sum += d.iter().map(|&v| f64::from(v)).sum::<f64>();
-            changed += usize::from(d.iter().any(|&v| v > 1.0 / 255.0));
+            changed += usize::from(d.iter().any(|&v| v > ONE_LEVEL));
             out.put(x, y, d.map(|v| (v * DIFFERENCE_GAIN).min(1.0)));
         }
     }

@@ -26,7 +26,7 @@ use crate::depth::DepthMap;
 use crate::engine::manifest::{self, ManifestError, Precision, Task, VerifiedModel};
 use crate::engine::resample;
 use crate::engine::{Engine, EngineError, ModelSource, Plan, Tensor};
-use crate::io::photo::SrgbImage;
+use crate::io::photo::{SrgbImage, ONE_LEVEL};
 use crate::reshade::{PreparedPhoto, ReshadeError, Reshader};
 use crate::views::Intrinsics;
 
@@ -70,9 +70,6 @@ pub const DEFAULT_MAX_SIDE: usize = 256;
 /// the photo while the views whose shading changes keep their gain within 0.01 dB
 /// (models/reshade/README.md, "A gate for views that hardly change").
 pub const DEFAULT_VIEW_GATE: f64 = 0.02;
-
-/// One 8-bit level, the smallest change the gate counts.
-const LEVEL: f32 = 1.0 / 255.0;
 
 /// How the per-view work is done; every choice other than the default trades fidelity
 /// or memory for time (docs/benchmarks.md, "Per-view cost options").
@@ -585,7 +582,7 @@ impl NetPhoto<'_> {
                     None => a[j],
                 };
                 *v = (self.full[j] + residual).clamp(0.0, 1.0);
-                moved |= (*v - self.full[j]).abs() > LEVEL;
+                moved |= (*v - self.full[j]).abs() > ONE_LEVEL;
             }
             changed += usize::from(moved);
         }

@@ -6,7 +6,7 @@ Layout (written by `reshader-train render`): `<root>/<id>/` with `input.exr`, `r
 frame of the input camera, scene units) and "input_camera" (fx, fy, cx, cy in pixels). Only
 folders with a meta.json are complete; `.tmp-*` folders are renders in progress.
 
-An example may carry further reshaded targets (`render --scenes analytic --targets T`):
+An example may carry further reshaded targets (`render --targets T`):
 `reshaded-<k>.exr` and `mask-<k>.png` for k = 1 .. T-1, listed in meta.json's
 "extra_targets" as {"offset": [tx, ty, tz], "camera": {...}, "reshaded": "reshaded-<k>.exr",
 "mask": "mask-<k>.png"}. The files above are always the first target, so a reader that

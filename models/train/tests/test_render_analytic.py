@@ -184,10 +184,10 @@ def test_several_targets_are_written_deterministically_and_resume(tmp_path):
         assert _files(a) == _files(b) and _meta(a) == _meta(b)
 
 
-def test_several_targets_need_the_analytic_family(capsys):
+def test_targets_must_be_one_or_more_and_input_only_renders_none(capsys):
     args = ["render", "--out", "/nonexistent", "--count", "1", "--targets", "2"]
-    assert main([*args, "--scenes", "procedural"]) == 2
-    assert "--targets applies to analytic scenes only" in capsys.readouterr().err
+    assert main([*args, "--scenes", "procedural", "--input-only"]) == 2
+    assert "--input-only renders no reshaded target" in capsys.readouterr().err
     assert main([*args, "--scenes", "analytic", "--targets", "0"]) == 2
     assert "--targets 0" in capsys.readouterr().err
 

@@ -213,3 +213,35 @@ def test_rounded_boxes_face_outwards_and_the_sweep_faces_the_subject():
     # Towards a subject standing on the floor in front of the cove.
     assert (np.sum(normal * ([0.0, 1.0, 1.0] - centre), axis=1) > 0).all()
     assert verts[:, 1].max() == pytest.approx(3.0) and verts[:, 2].min() == pytest.approx(-1.0)
+
+
+def test_further_targets_of_a_path_traced_example_share_its_samples(tmp_path):
+    from reshader_train.data import list_examples, load_example
+
+    common = ["render", "--scenes", "procedural:products", "--count", "1", "--seed", "3"]
+    common += ["--size", "32x32", "--spp", "4", "--change-seeds", "2", "--threads", "1"]
+    one, three = tmp_path / "one", tmp_path / "three"
+    assert run_cli(*common, "--out", str(one)) == 0
+    assert run_cli(*common, "--out", str(three), "--targets", "3") == 0
+    (a,), (b,) = list_examples(one), list_examples(three)
+
+    def files(folder):
+        return {p.name: p.read_bytes() for p in folder.iterdir() if p.name != "meta.json"}
+
+    # The first target is the one-target render's, byte for byte.
+    assert {k: v for k, v in files(b).items() if k in files(a)} == files(a)
+    assert set(files(b)) - set(files(a)) == {
+        "reshaded-1.exr", "reshaded-2.exr", "mask-1.png", "mask-2.png"
+    }  # fmt: skip
+    meta = json.loads((b / "meta.json").read_text())
+    offsets = [meta["novel_offset"]] + [e["offset"] for e in meta["extra_targets"]]
+    assert all(0.1 <= np.linalg.norm(o) <= 0.3 for o in offsets)
+    assert len({tuple(o) for o in offsets}) == 3
+    ex = load_example(b)
+    assert ex.target_count == 3
+    for k in (1, 2):
+        target = ex.target(k)
+        assert target.reshaded.shape == (32, 32, 3) and np.isfinite(target.reshaded).all()
+        # Another camera shades the same samples differently, but the same scene.
+        assert not np.array_equal(target.reshaded, ex.reshaded)
+        assert abs(target.reshaded.mean() - ex.input.mean()) < 0.5 * ex.input.mean()

@@ -5,7 +5,7 @@ Layout of `<out>/<id>/` (the training toolchain reads exactly this):
   depth.exr                          1 channel float32 z-depth of the input view (inf: sky)
   mask.png                           8-bit L, 255 valid / 0 invalid
   meta.json                          cameras, novel offset, every scene parameter, timings
-With several targets per example (`render --targets T`, analytic scenes only), the files
+With several targets per example (`render --targets T`), the files
 above hold the first target and targets k = 1 .. T-1 add
   reshaded-<k>.exr                   the input's samples seen from novel camera k
   mask-<k>.png                       what novel camera k sees of them
@@ -49,7 +49,7 @@ class RenderSettings:
     # 1 writes the reshaded render of the input's own seed.
     change_seeds: int = 1
     # Reshaded targets per example (novel cameras): the first is written as reshaded.exr,
-    # the others as reshaded-<k>.exr (analytic scenes only).
+    # the others as reshaded-<k>.exr.
     targets: int = 1
     # Only the input and its depth (no reshaded or novel render, no mask): examples for
     # training a depth network, at a third of the cost.
@@ -205,9 +205,11 @@ def render_views(
     timings: dict,
     change_seeds: int = 1,
     input_only: bool = False,
+    extra_cams: tuple[Camera, ...] = (),
 ) -> dict:
     """input / reshaded / novel RGB, invalid fraction per pixel, and input depth (with
-    `input_only`, the input and its depth alone)."""
+    `input_only`, the input and its depth alone). With `extra_cams`, "extra" holds one
+    {"reshaded", "invalid"} per further novel camera, shaded from the same samples."""
     from .integrator import make_path, make_reshade, render_depth, render_image
 
     path = make_path(max_depth)
@@ -221,19 +223,23 @@ def render_views(
         timings["depth"] = time.perf_counter() - t
         return out
     t = time.perf_counter()
+    seeds = [seed] + [(seed + k) % 2**31 for k in range(1, change_seeds)]
+    inputs = [out["input"]]
+    inputs += [render_image(scene, input_cam, spp, s, path)[..., :3] for s in seeds[1:]]
     reshade = make_reshade(novel_cam, input_cam, max_depth)
-    reshaded = render_image(scene, input_cam, spp, seed, reshade)
-    out["reshaded"], out["invalid"] = reshaded[..., :3], reshaded[..., 3]
-    out["z_primary"], out["z_rehit"] = reshaded[..., 4], reshaded[..., 5]
+    out["reshaded"], out["invalid"], first = reshaded_target(
+        scene, input_cam, spp, seeds, inputs, reshade
+    )
+    out["z_primary"], out["z_rehit"] = first[..., 4], first[..., 5]
     timings["reshaded"] = time.perf_counter() - t
-    if change_seeds > 1:
+    if extra_cams:
         t = time.perf_counter()
-        change, invalid = denoised_change(
-            scene, input_cam, spp, seed, change_seeds, path, reshade, out
-        )
-        out["reshaded"] = out["input"] + change
-        out["invalid"] = invalid
-        timings["change_seeds"] = time.perf_counter() - t
+        out["extra"] = []
+        for cam in extra_cams:
+            reshade.set_cameras(cam.centre, input_cam.centre, input_cam.rotation[:, 2])
+            image, invalid, _ = reshaded_target(scene, input_cam, spp, seeds, inputs, reshade)
+            out["extra"].append({"reshaded": image, "invalid": invalid})
+        timings["extra_targets"] = time.perf_counter() - t
     t = time.perf_counter()
     out["novel"] = render_image(scene, novel_cam, spp, seed, path)[..., :3]
     timings["novel"] = time.perf_counter() - t
@@ -253,23 +259,31 @@ def seed_pairs(scene, camera, spp, seeds, path, reshade):
         yield image, render_image(scene, camera, spp, sample_seed, reshade)
 
 
-def denoised_change(scene, camera, spp, seed, seeds, path, reshade, first):
-    """Mean of (reshaded - input) over `seeds` sample seeds (the first already rendered in
-    `first`), and the union of their invalid masks.
+def reshaded_target(scene, camera, spp, seeds, inputs, reshade):
+    """The reshaded target of `reshade`'s novel camera: (RGB, invalid, the first seed's
+    render with its AOVs). With one sample seed, the render itself. With several (inputs
+    holds the input rendered with each), the first input plus the mean of (reshaded -
+    input) over the seeds, and the union of their invalid masks.
 
     Input and reshaded share their samples, but their paths part wherever a glossy
     surface sends the two primary rays' bounces apart; that part of the difference is
     noise the input cannot predict. The ground truth input + mean change keeps the
     input's own noise (a network must not try to remove it) and divides the variance
-    of the change by `seeds`.
+    of the change by the number of seeds. Every target of an example reuses the inputs:
+    a further camera costs its reshaded renders alone, with the kernels already compiled.
     """
-    total = first["reshaded"] - first["input"]
-    invalid = first["invalid"].copy()
-    extra = range(seed + 1, seed + seeds)
-    for image, truth in seed_pairs(scene, camera, spp, extra, path, reshade):
+    from .integrator import render_image
+
+    first = render_image(scene, camera, spp, seeds[0], reshade)
+    if len(seeds) == 1:
+        return first[..., :3], first[..., 3], first
+    total = first[..., :3] - inputs[0]
+    invalid = first[..., 3].copy()
+    for sample_seed, image in zip(seeds[1:], inputs[1:], strict=True):
+        truth = render_image(scene, camera, spp, sample_seed, reshade)
         total += truth[..., :3] - image
         invalid = np.maximum(invalid, truth[..., 3])
-    return total / seeds, invalid
+    return inputs[0] + total / len(seeds), invalid, first
 
 
 def brightness_scale(image: np.ndarray) -> float:
@@ -399,6 +413,8 @@ class ExampleSetup:
     novel_cam: Camera
     offset: np.ndarray
     render_seed: int
+    # (novel camera, offset) of the targets after the first (settings.targets - 1).
+    extra: list[tuple[Camera, np.ndarray]]
 
 
 def setup_example(mi, source, seed: int, index: int, settings: RenderSettings) -> ExampleSetup:
@@ -407,8 +423,16 @@ def setup_example(mi, source, seed: int, index: int, settings: RenderSettings) -
     input_cam = make_camera(cam, settings.width, settings.height)
     offset = sample_shell(rng, settings.radius_min, settings.radius_max)
     render_seed = int(example_rng(seed, index, 1).integers(2**31))
+    # From a stream of their own, like the analytic scenes' further targets: the first
+    # target is what a one-target render writes, and target k the same whatever the number
+    # asked for. The input camera's clearance keeps every offset in free space.
+    shell = example_rng(seed, index, 2)
+    extra = []
+    for _ in range(settings.targets - 1):
+        extra_offset = sample_shell(shell, settings.radius_min, settings.radius_max)
+        extra.append((input_cam.translated(extra_offset), extra_offset))
     return ExampleSetup(
-        params, scene, cam, input_cam, input_cam.translated(offset), offset, render_seed
+        params, scene, cam, input_cam, input_cam.translated(offset), offset, render_seed, extra
     )
 
 
@@ -429,6 +453,7 @@ def render_example(mi, source, out_dir: str, seed: int, index: int, settings: Re
         timings,
         settings.change_seeds,
         settings.input_only,
+        tuple(c for c, _ in ex.extra),
     )
     timings["total"] = time.perf_counter() - start
     meta = example_meta(
@@ -445,6 +470,7 @@ def render_example(mi, source, out_dir: str, seed: int, index: int, settings: Re
         scene=ex.params,
         camera=ex.cam,
         timings=timings,
+        extra=ex.extra,
     )
     write_example(out_dir, views, meta, partial(_write_exr, mi), partial(_write_png, mi))
     return meta

@@ -226,6 +226,18 @@ def load_checkpoint_model(
     return model_from_checkpoint(ckpt, device), ckpt
 
 
+def load_evaluated_model(path: Path) -> tuple[ReshadeNet, dict]:
+    """A float checkpoint's network, or a `quantize` checkpoint's int8 network as exported
+    in the form QAT fine-tuned (weights alone for `--form weights`, the shipped int8)."""
+    from .quantize import load_any_checkpoint, set_input_quantization
+
+    net, ckpt = load_any_checkpoint(path)
+    quantization = ckpt.get("quantization")
+    if quantization and quantization.get("qat_form") == "weights":
+        set_input_quantization(net, False)
+    return net, ckpt
+
+
 def lpips_metric():
     """(LPIPS callable, None) when lpips and its AlexNet weights are on disk, else (None, why)."""
     try:
@@ -424,7 +436,13 @@ def write_sheet(rows: list[dict], path: Path, count: int = 6) -> None:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--checkpoint", type=Path, required=True, help="training checkpoint (.pt)")
+    p.add_argument(
+        "--checkpoint",
+        type=Path,
+        required=True,
+        help="training checkpoint (.pt), or `quantize`'s: its int8 network in the form it "
+        "was fine-tuned for (--form weights: int8 weights, float activations, as the int8 files)",
+    )
     p.add_argument("--data", type=Path, nargs="+", required=True, help="held-out dataset folder(s)")
     p.add_argument("--limit", type=int, help="first N examples of each folder")
     p.add_argument("--sheet", type=Path, help="visual sheet PNG (input | ours | GT | error)")
@@ -480,7 +498,7 @@ def run(args: argparse.Namespace) -> int:
     if args.threads > 0:
         torch.set_num_threads(args.threads)
     try:
-        net, ckpt = load_checkpoint_model(args.checkpoint)
+        net, ckpt = load_evaluated_model(args.checkpoint)
     except (FileNotFoundError, ValueError) as err:
         print(f"evaluate: {err}", file=sys.stderr)
         return 2

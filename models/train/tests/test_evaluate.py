@@ -8,6 +8,7 @@ from PIL import Image
 
 from reshader_train import cli
 from reshader_train.evaluate import (
+    load_evaluated_model,
     masked_psnr,
     masked_ssim,
     pad_to_multiple,
@@ -284,3 +285,44 @@ def test_transpose_runs_the_network_turned_about_the_diagonal():
     unswapped = reshade(net, image.mT, disparity.mT, camera).mT
     assert (turned - unswapped).abs().max() > 1e-4
     assert (turned - reshade(net, image, disparity, camera)).abs().max() > 1e-4
+
+
+def test_evaluate_scores_a_quantize_checkpoint_in_the_form_it_was_fine_tuned_for(
+    tmp_path, monkeypatch
+):
+    from reshader_train import quantize
+
+    data = write_dataset(tmp_path / "data", 2, 32, 40, seed=5)
+    cfg = net_config("4,8,8,16,16,16")
+    torch.manual_seed(0)
+    ckpt = tmp_path / "ckpt.pt"
+    torch.save({"model": ReshadeNet(cfg).state_dict(), "net_config": cfg.to_json()}, ckpt)
+    argv = ["quantize", str(ckpt), "--data", str(data), "--steps", "2", "--batch-size", "2",
+            "--crop", "32", "--calib-batches", "1", "--threads", "1"]  # fmt: skip
+    assert cli.main(argv + ["--out", str(tmp_path / "w.pt"), "--form", "weights"]) == 0
+    assert cli.main(argv + ["--out", str(tmp_path / "q.pt")]) == 0
+    calls = {"n": 0}
+    real = quantize.ActQuant.forward
+
+    def counting(self, x):
+        calls["n"] += 1
+        return real(self, x)
+
+    monkeypatch.setattr(quantize.ActQuant, "forward", counting)
+    scores = {}
+    for name in ("ckpt", "w", "q"):
+        calls["n"] = 0
+        out = tmp_path / f"{name}.json"
+        argv = ["evaluate", "--checkpoint", str(tmp_path / f"{name}.pt"), "--data", str(data),
+                "--json", str(out), "--threads", "1"]  # fmt: skip
+        assert cli.main(argv) == 0
+        scores[name] = (
+            [e["psnr_ours"] for e in json.loads(out.read_text())["examples"]],
+            calls["n"],
+        )
+    # Weights form: int8 weights (other scores than the float network's), float inputs.
+    assert scores["w"][0] != scores["ckpt"][0] and scores["w"][1] == 0
+    assert scores["q"][1] > 0 and scores["ckpt"][1] == 0
+    net, _ = load_evaluated_model(tmp_path / "w.pt")
+    convs = quantize.quant_convs(net)
+    assert convs and all(c.enabled and not c.quantize_input for c in convs)

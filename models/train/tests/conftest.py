@@ -1,4 +1,4 @@
-"""Fixtures and helpers shared by the teacher tests."""
+"""Fixtures and helpers shared by the tests."""
 
 import json
 
@@ -33,3 +33,20 @@ def check_untrained(cfg, data, fields, tmp_path, name: str = "net") -> tuple[lis
             str(fields), "--json", str(out)]  # fmt: skip
     assert main(argv) == 0
     return argv, json.loads(out.read_text())
+
+
+@pytest.fixture
+def act_quant_calls(monkeypatch):
+    """Counts the calls of quantize.ActQuant.forward (activation fake-quantisation): a
+    dict whose "n" a test may reset."""
+    from reshader_train import quantize
+
+    calls = {"n": 0}
+    real = quantize.ActQuant.forward
+
+    def counting(self, x):
+        calls["n"] += 1
+        return real(self, x)
+
+    monkeypatch.setattr(quantize.ActQuant, "forward", counting)
+    return calls

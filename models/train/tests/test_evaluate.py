@@ -288,9 +288,9 @@ def test_transpose_runs_the_network_turned_about_the_diagonal():
 
 
 def test_evaluate_scores_a_quantize_checkpoint_in_the_form_it_was_fine_tuned_for(
-    tmp_path, monkeypatch
+    tmp_path, act_quant_calls
 ):
-    from reshader_train import quantize
+    from reshader_train.quantize import quant_convs
 
     data = write_dataset(tmp_path / "data", 2, 32, 40, seed=5)
     cfg = net_config("4,8,8,16,16,16")
@@ -301,14 +301,7 @@ def test_evaluate_scores_a_quantize_checkpoint_in_the_form_it_was_fine_tuned_for
             "--crop", "32", "--calib-batches", "1", "--threads", "1"]  # fmt: skip
     assert cli.main(argv + ["--out", str(tmp_path / "w.pt"), "--form", "weights"]) == 0
     assert cli.main(argv + ["--out", str(tmp_path / "q.pt")]) == 0
-    calls = {"n": 0}
-    real = quantize.ActQuant.forward
-
-    def counting(self, x):
-        calls["n"] += 1
-        return real(self, x)
-
-    monkeypatch.setattr(quantize.ActQuant, "forward", counting)
+    calls = act_quant_calls
     scores = {}
     for name in ("ckpt", "w", "q"):
         calls["n"] = 0
@@ -324,5 +317,5 @@ def test_evaluate_scores_a_quantize_checkpoint_in_the_form_it_was_fine_tuned_for
     assert scores["w"][0] != scores["ckpt"][0] and scores["w"][1] == 0
     assert scores["q"][1] > 0 and scores["ckpt"][1] == 0
     net, _ = load_evaluated_model(tmp_path / "w.pt")
-    convs = quantize.quant_convs(net)
+    convs = quant_convs(net)
     assert convs and all(c.enabled and not c.quantize_input for c in convs)

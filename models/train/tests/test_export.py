@@ -369,21 +369,12 @@ def test_training_can_start_from_an_exported_fp32_pair(exported, tmp_path):
     assert count == len(fresh) - 3
 
 
-def test_quantize_weights_form_fine_tunes_with_float_activations(data, tmp_path, monkeypatch):
-    from reshader_train import quantize
-
+def test_quantize_weights_form_fine_tunes_with_float_activations(data, tmp_path, act_quant_calls):
     torch.manual_seed(0)
     net = ReshadeNet(net_config(TINY))
     ckpt = tmp_path / "checkpoint.pt"
     torch.save({"model": net.state_dict(), "net_config": net.cfg.to_json(), "step": 5}, ckpt)
-    calls = {"n": 0}
-    real = quantize.ActQuant.forward
-
-    def counting(self, x):
-        calls["n"] += 1
-        return real(self, x)
-
-    monkeypatch.setattr(quantize.ActQuant, "forward", counting)
+    calls = act_quant_calls
     argv = ["quantize", str(ckpt), "--data", str(data), "--steps", "2", "--batch-size", "2",
             "--crop", "32", "--calib-batches", "1", "--threads", "1"]  # fmt: skip
     assert cli.main(argv + ["--out", str(tmp_path / "w.pt"), "--form", "weights"]) == 0

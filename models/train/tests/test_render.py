@@ -298,7 +298,7 @@ def run_cli(*argv) -> int:
     return main(list(argv))
 
 
-def test_render_command_writes_complete_resumable_examples(mi, tmp_path):
+def test_render_command_writes_complete_resumable_examples(mi, tmp_path, monkeypatch):
     out = str(tmp_path / "data")
     args = ["render", "--out", out, "--count", "3", "--size", "16x12", "--spp", "4", "--seed", "5"]
     assert run_cli(*args, "--shard", "1/2") == 0
@@ -341,6 +341,10 @@ def test_render_command_writes_complete_resumable_examples(mi, tmp_path):
     assert run_cli(*args, "--count", "4") == 0
     assert os.path.getmtime(os.path.join(folder, "meta.json")) == stamp
     assert not os.path.exists(os.path.join(out, ".tmp-00005-000003"))
+    # With nothing left to render, Mitsuba is not even loaded (seconds per resumed round).
+    with monkeypatch.context() as m:
+        m.setattr(mitsuba_env, "load_mitsuba", lambda threads: pytest.fail("loaded Mitsuba"))
+        assert run_cli(*args, "--count", "4") == 0
     # Deterministic: re-rendering an example reproduces it.
     again = str(tmp_path / "again")
     assert (

@@ -174,6 +174,9 @@ class AnalyticSource:
 
     name = "analytic"
 
+    def load(self) -> None:
+        """Nothing to load."""
+
     def render(self, out: str, seed: int, index: int, settings: RenderSettings) -> None:
         from . import analytic
 
@@ -181,14 +184,20 @@ class AnalyticSource:
 
 
 class MitsubaRenderer:
-    """A Mitsuba scene source with the loaded module; frees each scene's kernels after it."""
+    """A Mitsuba scene source; frees each scene's kernels after it. Mitsuba loads in
+    `load`, apart from the flags' checks, because loading it takes seconds that a resumed
+    job with nothing left to render should not spend (a recipe checks every round)."""
 
     def __init__(self, args):
-        from .mitsuba_env import load_mitsuba
-
         self.source = _source(args)
         self.name = self.source.name
-        self.mi = load_mitsuba(args.threads)
+        self.threads = args.threads
+        self.mi = None
+
+    def load(self) -> None:
+        from .mitsuba_env import load_mitsuba
+
+        self.mi = load_mitsuba(self.threads)
         self.source.prepare(self.mi)
 
     def render(self, out: str, seed: int, index: int, settings: RenderSettings) -> None:
@@ -222,12 +231,14 @@ def run(args) -> int:
         settings = parse_settings(args)
         shard, shards = _shard(args.shard)
         source = _renderer(args)
+        indices = range(shard, args.count, shards)
+        todo = [i for i in indices if not is_complete(args.out, example_id(args.seed, i))]
+        if todo:
+            source.load()
     except (ValueError, FileNotFoundError, LlvmNotFound) as err:
         print(f"reshader-train render: {err}", file=sys.stderr)
         return 2
     os.makedirs(args.out, exist_ok=True)
-    indices = range(shard, args.count, shards)
-    todo = [i for i in indices if not is_complete(args.out, example_id(args.seed, i))]
     skipped = len(indices) - len(todo)
     print(
         f"render: {source.name} -> {args.out}, seed {args.seed}, shard {shard}/{shards}: "

@@ -24,7 +24,8 @@ def _launcher(tmp_path: Path, status: int = 0) -> Path:
     script.write_text(
         "#!/usr/bin/env bash\nset -euo pipefail\n"
         f'LOWEST_PRIORITY_LAUNCHER=1 source "{RECIPES}/lowest-priority"\n'
-        'echo "$$ $(ps -o sid= -p $$ | tr -d " ") $(ps -o ni= -p $$ | tr -d " ") $*"\n'
+        'echo "$$ $(ps -o sid= -p $$ | tr -d " ") $(ps -o ni= -p $$ | tr -d " ")'
+        ' $(printf "[%s]" "$@")"\n'
         "cat /proc/self/autogroup 2>/dev/null || true\n"
         f"exit {status}\n"
     )
@@ -38,10 +39,10 @@ def test_a_launcher_started_inside_another_session_leads_its_own_at_nice_19(tmp_
         [str(_launcher(tmp_path)), "a", "b c"], capture_output=True, text=True, check=True
     )
     first, *rest = done.stdout.splitlines()
-    pid, sid, nice, *args = first.split()
+    pid, sid, nice, args = first.split(" ", 3)
     assert pid == sid, "the launcher did not become the leader of a new session"
     assert nice == "19"
-    assert args == ["a", "b", "c"]
+    assert args == "[a][b c]", "the arguments did not reach the second start as given"
     if rest:  # the kernel groups sessions (autogroup): the new group is lowered too
         assert rest[0].endswith("nice 19"), rest[0]
 

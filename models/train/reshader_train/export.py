@@ -640,6 +640,7 @@ def architecture(cfg: NetConfig, size: str, kind: GraphKind) -> dict:
         "head": cfg.head,
         "out_channels": cfg.out_channels,
         "deadzone": cfg.deadzone,
+        "film": cfg.film,
         "parameters": count_parameters(module),
         "gflops_at_384x640": round(gflops, 4),
     }

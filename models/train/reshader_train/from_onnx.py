@@ -55,7 +55,12 @@ def config_from(manifest: dict, where: Path) -> NetConfig:
     head = arch.get("head", "residual")
     if head not in HEADS:
         raise ValueError(f"{where}: unknown output head {head!r}")
-    return replace(cfg, head=head, deadzone=float(arch.get("deadzone", 0.0)))
+    return replace(
+        cfg,
+        head=head,
+        deadzone=float(arch.get("deadzone", 0.0)),
+        film=bool(arch.get("film", False)),
+    )
 
 
 def loss_options(command: str) -> dict[str, str]:

@@ -98,6 +98,8 @@ class NetConfig:
     domain: str = "display"
     # Where the lobes' amplitudes come from: see LOBE_AMPLITUDES.
     amplitude: str = "free"
+    # The camera also scales and shifts every decoder level's channels: see Decoder.
+    film: bool = False
 
     def __post_init__(self) -> None:
         if len(self.widths) != LEVELS or len(self.convs) != LEVELS:
@@ -120,6 +122,8 @@ class NetConfig:
             )
         if self.amplitude == "photo" and self.domain != "linear-clamped":
             raise ValueError("lobe amplitudes from the photo need the linear-clamped domain")
+        if self.film and not self.takes_camera:
+            raise ValueError(f"camera FiLM needs a head that takes the camera, not {self.head}")
 
     @property
     def out_channels(self) -> int:
@@ -147,6 +151,7 @@ class NetConfig:
             lobes=int(data.get("lobes", 2)),
             domain=data.get("domain", "display"),
             amplitude=data.get("amplitude", "free"),
+            film=bool(data.get("film", False)),
         )
 
 
@@ -157,6 +162,9 @@ class NetConfig:
 SIZES = {
     "full": NetConfig(widths=(32, 64, 128, 256, 512, 512)),
     "lite": NetConfig(widths=(8, 16, 32, 64, 128, 128), convs=(1, 1, 2, 2, 2, 2)),
+    # `lite` at 1.5x the width (2.25x the FLOPs): whether width holds the lite network back
+    # (`train --init-widen` starts it from a trained lite model's output).
+    "wide": NetConfig(widths=(12, 24, 48, 96, 192, 192), convs=(1, 1, 2, 2, 2, 2)),
 }
 
 
@@ -314,6 +322,11 @@ class Decoder(nn.Module):
         )
         self.upsample = nn.ModuleList(Upsample2x(w[i + 1]) for i in reversed(range(LEVELS - 1)))
         self.out = nn.Conv2d(w[0], cfg.out_channels, 3, padding=1)
+        self.film = (
+            nn.ModuleList(nn.Linear(CAMERA_FEATURES, 2 * w[i]) for i in reversed(range(LEVELS - 1)))
+            if cfg.film
+            else None
+        )
         self.gradient = ImageGradient() if cfg.head == "flow" else None
         # A small last layer starts the network near the identity (reshaded = input), which
         # is the right answer for most pixels and what the no-reshading baseline scores.
@@ -325,15 +338,33 @@ class Decoder(nn.Module):
     ) -> torch.Tensor:
         """The last conv's output: the residual, or the head's per-pixel quantities."""
         x = bottleneck
+        features = None
         if self.camera is not None:
+            features = self.camera(camera)
             # Broadcast by adding a zero plane rather than with expand(): exports as a plain
             # Add instead of Expand (which tract's int8 path rejects) plus shape arithmetic.
-            cam = self.camera(camera)[:, :, None, None] + torch.zeros_like(bottleneck[:, :1])
+            cam = features[:, :, None, None] + torch.zeros_like(bottleneck[:, :1])
             x = torch.cat([bottleneck, cam], dim=1)
         x = self.bottleneck(x)
-        for up, block, skip in zip(self.upsample, self.ups, reversed(skips), strict=True):
+        for i, (up, block, skip) in enumerate(
+            zip(self.upsample, self.ups, reversed(skips), strict=True)
+        ):
             x = block(torch.cat([up(x), skip], dim=1))
+            if self.film is not None:
+                x = self.modulate(x, self.film[i](features))
         return self.out(x)
+
+    @staticmethod
+    def modulate(x: torch.Tensor, film: torch.Tensor) -> torch.Tensor:
+        """x * (1 + gain) + shift, one gain and shift per channel from the camera.
+
+        Why: with the camera only at the bottleneck, the full-resolution levels, where a
+        highlight's edge is, can make a product of the camera and the photo's local detail
+        only out of LeakyReLU pieces; a per-channel gain is that product. The layers start
+        at zero, so a network initialised from one without them computes the same image."""
+        c = x.shape[1]
+        gain, shift = film[:, :c, None, None], film[:, c:, None, None]
+        return x * (1.0 + gain) + shift
 
     def forward(
         self,
@@ -653,6 +684,10 @@ class ReshadeNet(nn.Module):
             if isinstance(m, (nn.Conv2d, nn.Linear)) and m is not self.decoder.out:
                 nn.init.kaiming_normal_(m.weight, a=NEG_SLOPE, nonlinearity="leaky_relu")
                 nn.init.zeros_(m.bias)
+        if self.decoder.film is not None:
+            for layer in self.decoder.film:
+                nn.init.zeros_(layer.weight)
+                nn.init.zeros_(layer.bias)
 
     def forward(
         self,

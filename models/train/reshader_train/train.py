@@ -119,6 +119,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "pixel's light at the photo's view, and the photo sets the scale)",
     )
     p.add_argument(
+        "--film",
+        action="store_true",
+        help="the camera also gives a gain and a shift per channel at every decoder level, "
+        "not only features at the bottleneck (starts at zero: with --init-from and "
+        "--init-partial a network without it is continued exactly)",
+    )
+    p.add_argument(
         "--deadzone",
         type=float,
         default=0.0,
@@ -256,6 +263,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         action="store_true",
         help="with --init-from: copy only the parameters whose name and shape match (e.g. a "
         "lobes network from a residual model's encoder and decoder); the rest start afresh",
+    )
+    p.add_argument(
+        "--init-widen",
+        action="store_true",
+        help="with --init-from: the files are a narrower network of the same head and depth "
+        "(e.g. the shipped lite pair for --size wide); its weights are embedded so that the "
+        "wider network starts out computing the same image, its added channels unused",
     )
     p.add_argument("--checkpoint-every", type=int, default=500)
     p.add_argument(
@@ -556,6 +570,20 @@ def write_config(args: argparse.Namespace, d: Dist, net: ReshadeNet, meta: dict,
     atomic_write(path, lambda tmp: tmp.write_text(json.dumps(config, indent=2)))
 
 
+def initialise(net: ReshadeNet, args: argparse.Namespace) -> int:
+    """Weights from --init-from's ONNX files, as they are or (--init-widen) embedded."""
+    if not args.init_widen:
+        return load_onnx_weights(net, args.init_from, partial=args.init_partial)
+    from .from_onnx import config_from, source_manifest
+    from .widen import widen_into
+
+    first = args.init_from[0]
+    source = config_from(source_manifest(first), first.with_suffix(".json"))
+    narrow = ReshadeNet(replace(source, deadzone=net.cfg.deadzone))
+    load_onnx_weights(narrow, args.init_from)
+    return widen_into(net, narrow)
+
+
 def param_groups(net: ReshadeNet, head_lr_scale: float) -> list[dict]:
     """One group, or (with a head learning-rate scale) the output conv in a second group
     that carries its scale; a checkpoint resumes with the grouping it was saved with."""
@@ -694,6 +722,7 @@ def train(args: argparse.Namespace) -> ReshadeNet:
         lobes=args.lobes,
         domain=args.lobe_domain,
         amplitude=args.lobe_amplitude,
+        film=args.film,
     )
     if args.teacher:
         check_teacher(args.teacher, cfg)
@@ -703,7 +732,7 @@ def train(args: argparse.Namespace) -> ReshadeNet:
     opt = torch.optim.Adam(param_groups(net, args.head_lr_scale), lr=args.lr)
     step = restore(args.run_dir, net, opt, criterion.ident, d)
     if step == 0 and args.init_from:
-        count = load_onnx_weights(net, args.init_from, partial=args.init_partial)
+        count = initialise(net, args)
         if d.main:
             total = len(list(net.parameters()))
             print(

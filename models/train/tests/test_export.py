@@ -753,3 +753,35 @@ def test_committed_lobe_fixture_is_consistent(folder, head):
     dep = parity["camera_dependence"]
     assert dep["[0.0, 0.0, 0.0]"]["max_abs_change"] == 0.0
     assert dep["[0.5, 0.0, 0.0]"]["max_abs_change"] > 0.1
+
+
+@pytest.mark.parametrize("precision", ["fp32", "int8"])
+def test_film_decoder_exports_and_imports_with_its_camera_gains(data, tmp_path, precision):
+    torch.manual_seed(3)
+    net = ReshadeNet(replace(net_config(TINY), film=True, deadzone=0.008)).eval()
+    # Distinct values everywhere (the exporter merges identical initialisers, such as zero
+    # biases, under one name) and camera gains far from their zero start.
+    for p in net.parameters():
+        p.data.normal_(0.0, 0.3)
+    if precision == "int8":
+        net = quantize_network(copy.deepcopy(net))
+        calibrate(net, training_crops(data, 2, 2, 32, seed=0))
+        net.eval()
+        for m in net.modules():  # the shipped form: int8 weights, float activations
+            if hasattr(m, "quantize_input"):
+                m.quantize_input = False
+    info = ExportInfo(size="film", validation={})
+    form = {"int8_form": "weights"} if precision == "int8" else {}
+    export_precision(net, precision, tmp_path, "film", info, True, H, W, **form)
+    m = json.loads((tmp_path / "film-decoder.json").read_text())
+    assert m["architecture"]["film"] is True
+    feed = random_feed()
+    with torch.no_grad():
+        ref = net(feed["image"], feed["disparity"], feed["camera"]).numpy()
+    got = split_output(tmp_path, "film", feed)
+    assert np.abs(got - ref).max() <= TOLERANCE["fp32"]
+    if precision == "fp32":
+        out = tmp_path / "imported.pt"
+        pair = [str(tmp_path / f"film-{part}.onnx") for part in ("encoder", "decoder")]
+        assert cli.main(["import", *pair, "--out", str(out)]) == 0
+        assert torch.load(out, weights_only=False)["net_config"]["film"] is True

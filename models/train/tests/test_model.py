@@ -418,3 +418,25 @@ def test_several_cameras_run_the_encoder_once_and_the_lobe_decoder_once():
         for k in range(4):
             one = net(image, disparity, cameras[:, k], rays)
             assert torch.allclose(out[:, k], one, atol=1e-6)
+
+
+def test_film_starts_as_the_network_without_it_and_then_follows_the_camera():
+    torch.manual_seed(0)
+    plain = ReshadeNet(TINY).eval()
+    torch.nn.init.normal_(plain.decoder.out.weight, std=0.3)
+    film = ReshadeNet(replace(TINY, film=True)).eval()
+    missing = film.load_state_dict(plain.state_dict(), strict=False).missing_keys
+    assert missing and all(k.startswith("decoder.film.") for k in missing)
+    image, disparity = inputs()
+    cam = torch.tensor([[0.2, -0.1, 0.05]])
+    with torch.no_grad():
+        assert torch.equal(film(image, disparity, cam), plain(image, disparity, cam))
+        for layer in film.decoder.film:
+            torch.nn.init.normal_(layer.weight, std=0.5)
+        moved = film(image, disparity, cam) - plain(image, disparity, cam)
+        other = film(image, disparity, -cam) - plain(image, disparity, -cam)
+    assert moved.abs().max() > 1e-3 and not torch.allclose(moved, other)
+    assert NetConfig.from_json(film.cfg.to_json()).film
+    assert not NetConfig.from_json({k: v for k, v in TINY.to_json().items() if k != "film"}).film
+    with pytest.raises(ValueError, match="FiLM needs a head that takes the camera"):
+        replace(TINY, head="lobes", film=True)

@@ -77,13 +77,23 @@ def loss_options(command: str) -> dict[str, str]:
     return found
 
 
-def build(files: list[Path], deadzone: float | None, argv_line: str) -> dict:
+def exported_network(
+    files: list[Path], label: str, deadzone: float | None = None
+) -> tuple[ReshadeNet, list[dict]]:
+    """The network an exported fp32 pair (or single graph) holds, as its manifests describe
+    it (with another dead zone if given), and those manifests."""
     manifests = [source_manifest(f) for f in files]
     cfg = config_from(manifests[0], files[0].with_suffix(".json"))
     if deadzone is not None:
         cfg = replace(cfg, deadzone=deadzone)
     net = ReshadeNet(cfg)
-    load_onnx_weights(net, files, label="import")
+    load_onnx_weights(net, files, label=label)
+    return net, manifests
+
+
+def build(files: list[Path], deadzone: float | None, argv_line: str) -> dict:
+    net, manifests = exported_network(files, "import", deadzone)
+    cfg = net.cfg
     training = manifests[0].get("training") or {}
     source_command = training.get("command", "unknown")
     return {

@@ -135,6 +135,11 @@ class NetConfig:
     def takes_camera(self) -> bool:
         return self.head not in LOBE_HEADS
 
+    @property
+    def camera_features(self) -> int:
+        """Channels the camera adds to the decoder's bottleneck input."""
+        return CAMERA_FEATURES if self.takes_camera else 0
+
     def to_json(self) -> dict:
         return asdict(self)
 
@@ -315,8 +320,7 @@ class Decoder(nn.Module):
         self.head = cfg.head
         self.deadzone = cfg.deadzone
         self.camera = CameraMLP(cfg.camera_hidden) if cfg.takes_camera else None
-        camera_features = CAMERA_FEATURES if cfg.takes_camera else 0
-        self.bottleneck = _block(w[-1] + camera_features, w[-1], cfg.convs[-1])
+        self.bottleneck = _block(w[-1] + cfg.camera_features, w[-1], cfg.convs[-1])
         self.ups = nn.ModuleList(
             _block(w[i + 1] + w[i], w[i], cfg.convs[i]) for i in reversed(range(LEVELS - 1))
         )

@@ -574,13 +574,10 @@ def initialise(net: ReshadeNet, args: argparse.Namespace) -> int:
     """Weights from --init-from's ONNX files, as they are or (--init-widen) embedded."""
     if not args.init_widen:
         return load_onnx_weights(net, args.init_from, partial=args.init_partial)
-    from .from_onnx import config_from, source_manifest
+    from .from_onnx import exported_network
     from .widen import widen_into
 
-    first = args.init_from[0]
-    source = config_from(source_manifest(first), first.with_suffix(".json"))
-    narrow = ReshadeNet(replace(source, deadzone=net.cfg.deadzone))
-    load_onnx_weights(narrow, args.init_from)
+    narrow, _ = exported_network(args.init_from, "--init-from", net.cfg.deadzone)
     return widen_into(net, narrow)
 
 

@@ -14,7 +14,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from .model import CAMERA_FEATURES, ENCODED_DISPARITY_CHANNELS, LEVELS, ReshadeNet
+from .model import ENCODED_DISPARITY_CHANNELS, LEVELS, ReshadeNet
 
 
 def _segments(wide: ReshadeNet, narrow: ReshadeNet) -> dict[str, tuple[list[int], list[int]]]:
@@ -27,7 +27,7 @@ def _segments(wide: ReshadeNet, narrow: ReshadeNet) -> dict[str, tuple[list[int]
         first = ([fixed], [fixed]) if i == 0 else ([nw[i - 1]], [ww[i - 1]])
         for k in range(wide.cfg.convs[i]):
             inputs[f"encoder.blocks.{i}.{2 * k}"] = first if k == 0 else ([nw[i]], [ww[i]])
-    camera = CAMERA_FEATURES if wide.cfg.takes_camera else 0
+    camera = wide.cfg.camera_features
     top = LEVELS - 1
     for k in range(wide.cfg.convs[top]):
         narrow_in = [nw[top], camera] if k == 0 else [nw[top]]

@@ -25,7 +25,12 @@ from reshader_train.export import (
     run_onnxruntime,
 )
 from reshader_train.model import EncoderGraph, ReshadeNet, net_config
-from reshader_train.quantize import calibrate, quantize_network, training_crops
+from reshader_train.quantize import (
+    calibrate,
+    quantize_network,
+    set_input_quantization,
+    training_crops,
+)
 from reshader_train.synthetic import write_dataset
 
 TINY = "4,4,4,4,4,4"
@@ -193,9 +198,7 @@ def test_int8_weights_form_stores_int8_weights_and_float_activations(exported, n
     assert ops.count("DequantizeLinear") == ops.count("Conv") - 5 == 13  # 5 float blurs
     feed = random_feed(3)
     q = copy.deepcopy(nets["int8"])
-    for m in q.modules():
-        if hasattr(m, "quantize_input"):
-            m.quantize_input = False
+    set_input_quantization(q, False)
     with torch.no_grad():
         ref = q(feed["image"], feed["disparity"], feed["camera"]).numpy()
         full = nets["int8"](feed["image"], feed["disparity"], feed["camera"]).numpy()
@@ -767,9 +770,7 @@ def test_film_decoder_exports_and_imports_with_its_camera_gains(data, tmp_path, 
         net = quantize_network(copy.deepcopy(net))
         calibrate(net, training_crops(data, 2, 2, 32, seed=0))
         net.eval()
-        for m in net.modules():  # the shipped form: int8 weights, float activations
-            if hasattr(m, "quantize_input"):
-                m.quantize_input = False
+        set_input_quantization(net, False)  # the shipped form: int8 weights, float activations
     info = ExportInfo(size="film", validation={})
     form = {"int8_form": "weights"} if precision == "int8" else {}
     export_precision(net, precision, tmp_path, "film", info, True, H, W, **form)

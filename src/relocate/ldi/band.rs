@@ -7,7 +7,8 @@
 //! hidden pixel copies the background pixel whose neighbourhood best matches what is
 //! already known around it, trying first the continuation of its neighbours' copies
 //! (which extends stripes and edges into the hole rather than smearing them), then a
-//! mirror of the background next to it, then random background pixels nearby.
+//! mirror of the background next to it, then random background pixels nearby. Once the
+//! band has grown, each pixel chooses again against its whole neighbourhood.
 //! Candidates and known pixels are restricted to the background: foreground colours
 //! can never be copied into the band.
 //!
@@ -87,6 +88,14 @@ impl BandInput<'_> {
 
 /// Grows and inpaints the band behind every cut.
 pub(super) fn grow(input: &BandInput) -> Band {
+    let mut band = spread(input);
+    refine(&mut band, input);
+    band
+}
+
+/// The band grown breadth first, each pixel copying what best continues the
+/// neighbours filled before it.
+fn spread(input: &BandInput) -> Band {
     let mut band = Band {
         at: vec![NONE; input.width * input.height],
         disparity: Vec::new(),
@@ -113,6 +122,52 @@ pub(super) fn grow(input: &BandInput) -> Band {
         }
     }
     band
+}
+
+/// A second pass over the band once it has grown. Growing, a pixel chooses its source
+/// from the few neighbours filled before it, so two fronts meeting in the middle of a
+/// band each continue their own copy and leave a seam. Once every pixel has a source,
+/// each keeps it unless a candidate matches its whole neighbourhood better: its
+/// neighbours' copies continued or mirrored, and random pixels at halving distances
+/// around the current source (PatchMatch's search). One pass takes most of what passes
+/// give: a second moved the held-out renders' uncovered regions by under 0.1 dB.
+fn refine(band: &mut Band, input: &BandInput) {
+    let w = input.width as i64;
+    for r in 0..band.at.len() {
+        if band.at[r] == NONE {
+            continue;
+        }
+        let k = band.at[r] as usize;
+        let d = band.disparity[k];
+        let (rx, ry) = ((r as i64) % w, (r as i64) / w);
+        let mut target = known_patch(band, input, rx, ry, d);
+        target.retain(|&(dx, dy, _)| dx != 0 || dy != 0);
+        let current = band.source[k] as i64;
+        let mut best = (
+            patch_distance(input, &target, current % w, current / w, d),
+            band.source[k],
+        );
+        for m in input.neighbours4(r) {
+            let n = band.at[m];
+            if n == NONE {
+                continue;
+            }
+            let (ox, oy) = (rx - (m as i64) % w, ry - (m as i64) / w);
+            let s = band.source[n as usize] as i64;
+            consider(input, &target, d, (s % w + ox, s / w + oy), &mut best);
+            consider(input, &target, d, (s % w - ox, s / w - oy), &mut best);
+        }
+        let mut rng = SplitMix(r as u64 ^ 0x5851_f42d_4c95_7f2d);
+        let mut radius = (2 * input.patch_radius + 8) as i64;
+        while radius >= 1 {
+            let (cx, cy) = (best.1 as i64 % w, best.1 as i64 / w);
+            let dx = (rng.next() % (2 * radius as u64 + 1)) as i64 - radius;
+            let dy = (rng.next() % (2 * radius as u64 + 1)) as i64 - radius;
+            consider(input, &target, d, (cx + dx, cy + dy), &mut best);
+            radius /= 2;
+        }
+        band.source[k] = best.1;
+    }
 }
 
 /// The far pixel of every cut, with the band width its edge needs, the disparity of the
@@ -178,23 +233,11 @@ fn extrapolate_disparity(band: &Band, input: &BandInput, r: usize, surface: f32)
 /// The background pixel whose neighbourhood best matches the known neighbourhood of
 /// `r`, if any candidate is background.
 fn best_source(band: &Band, input: &BandInput, r: usize, d: f32, reach: usize) -> Option<u32> {
-    let (w, h) = (input.width as i64, input.height as i64);
+    let w = input.width as i64;
     let (rx, ry) = ((r as i64) % w, (r as i64) / w);
     let target = known_patch(band, input, rx, ry, d);
     let mut best = (f32::INFINITY, NONE);
-    let mut consider = |sx: i64, sy: i64| {
-        if sx < 0 || sy < 0 || sx >= w || sy >= h {
-            return;
-        }
-        let s = (sy * w + sx) as usize;
-        if !input.colour_source(s, d) || best.1 == s as u32 {
-            return;
-        }
-        let score = patch_distance(input, &target, sx, sy, d);
-        if score < best.0 {
-            best = (score, s as u32);
-        }
-    };
+    let mut consider = |at: (i64, i64)| consider(input, &target, d, at, &mut best);
     for m in input.neighbours4(r) {
         let (mx, my) = ((m as i64) % w, (m as i64) / w);
         let (ox, oy) = (rx - mx, ry - my);
@@ -204,13 +247,13 @@ fn best_source(band: &Band, input: &BandInput, r: usize, d: f32, reach: usize) -
             // off the background's edge, and the mirror walks back into it instead.
             k if k != NONE => {
                 let s = band.source[k as usize] as i64;
-                consider(s % w + ox, s / w + oy);
-                consider(s % w - ox, s / w - oy);
+                consider((s % w + ox, s / w + oy));
+                consider((s % w - ox, s / w - oy));
             }
             // Background next to the hole: itself and its mirror image across r's edge.
             _ if input.colour_source(m, d) => {
-                consider(mx, my);
-                consider(mx - ox, my - oy);
+                consider((mx, my));
+                consider((mx - ox, my - oy));
             }
             _ => {}
         }
@@ -220,9 +263,32 @@ fn best_source(band: &Band, input: &BandInput, r: usize, d: f32, reach: usize) -
     for _ in 0..input.random_candidates {
         let dx = (rng.next() % (2 * radius as u64 + 1)) as i64 - radius;
         let dy = (rng.next() % (2 * radius as u64 + 1)) as i64 - radius;
-        consider(rx + dx, ry + dy);
+        consider((rx + dx, ry + dy));
     }
     (best.1 != NONE).then_some(best.1)
+}
+
+/// Takes the background pixel at `at` as `best` (score, pixel) when its neighbourhood
+/// matches `target` better.
+fn consider(
+    input: &BandInput,
+    target: &[(i64, i64, [f32; 3])],
+    d: f32,
+    (sx, sy): (i64, i64),
+    best: &mut (f32, u32),
+) {
+    let (w, h) = (input.width as i64, input.height as i64);
+    if sx < 0 || sy < 0 || sx >= w || sy >= h {
+        return;
+    }
+    let s = (sy * w + sx) as usize;
+    if !input.colour_source(s, d) || best.1 == s as u32 {
+        return;
+    }
+    let score = patch_distance(input, target, sx, sy, d);
+    if score < best.0 {
+        *best = (score, s as u32);
+    }
 }
 
 /// Known colours around (x, y) as (dx, dy, colour): background pixels and band pixels.
@@ -277,4 +343,70 @@ fn patch_distance(
     let s = (sy * w + sx) as usize;
     let depth_penalty = ((input.disparity[s] - d) / d.max(1e-6)).powi(2);
     sum / target.len().max(1) as f32 + depth_penalty
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A far wall of diagonal stripes (three colours, each stripe two pixels wide)
+    /// behind a near square: the share of band pixels whose copied colour is the
+    /// stripe the wall has there.
+    fn stripes_behind_a_square(refined: bool) -> f64 {
+        let (w, h) = (48, 40);
+        let stripe = |i: usize| ((i % w) / 2 + i / w) % 3;
+        let palette = [[0.9, 0.2, 0.1], [0.1, 0.7, 0.2], [0.2, 0.3, 0.9]];
+        let near = |i: usize| (16..32).contains(&(i % w)) && (12..28).contains(&(i / w));
+        let disparity: Vec<f32> = (0..w * h)
+            .map(|i| if near(i) { 0.8 } else { 0.2 })
+            .collect();
+        let colours: Vec<f32> = (0..w * h)
+            .flat_map(|i| {
+                if near(i) {
+                    [0.5; 3]
+                } else {
+                    palette[stripe(i)]
+                }
+            })
+            .collect();
+        let cuts = super::super::edges::detect(&disparity, w, h, 0.04, 6);
+        let input = BandInput {
+            width: w,
+            height: h,
+            disparity: &disparity,
+            colours: &colours,
+            cuts: &cuts,
+            px_per_disparity: 10.0,
+            max_band_px: 256,
+            threshold: 0.04,
+            patch_radius: 2,
+            random_candidates: 6,
+        };
+        let mut band = spread(&input);
+        if refined {
+            refine(&mut band, &input);
+        }
+        let filled: Vec<usize> = (0..w * h).filter(|&p| band.at[p] != NONE).collect();
+        assert!(
+            filled.len() > 150,
+            "the band covers {} pixels",
+            filled.len()
+        );
+        let right = filled
+            .iter()
+            .filter(|&&p| stripe(band.source[band.at[p] as usize] as usize) == stripe(p))
+            .count();
+        right as f64 / filled.len() as f64
+    }
+
+    #[test]
+    fn refining_continues_stripes_where_fronts_meet() {
+        let greedy = stripes_behind_a_square(false);
+        let refined = stripes_behind_a_square(true);
+        assert!(
+            refined > 0.99,
+            "{refined:.3} of the band continues the stripes"
+        );
+        assert!(refined > greedy, "refined {refined:.3}, greedy {greedy:.3}");
+    }
 }

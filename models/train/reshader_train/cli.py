@@ -72,7 +72,12 @@ COMMANDS = [
 ]
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(chosen: str | None = None) -> argparse.ArgumentParser:
+    """The parser, with the arguments of `chosen` (every subcommand's when None).
+
+    Importing a subcommand's module can take seconds (PyTorch, ONNX): a recipe that
+    calls `render` hundreds of times to resume a data set should not pay them each time.
+    """
     parser = argparse.ArgumentParser(
         prog="reshader-train",
         description="Render training data, train the reshading network, export ONNX models.",
@@ -81,6 +86,8 @@ def build_parser() -> argparse.ArgumentParser:
     for name, module, help_text in COMMANDS:
         p = sub.add_parser(name, help=help_text, description=help_text)
         p.set_defaults(_module=module)
+        if chosen not in (None, name):
+            continue
         try:
             importlib.import_module(module).add_arguments(p)
         except ImportError as err:
@@ -88,8 +95,16 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def chosen_command(argv: list[str]) -> str | None:
+    """The subcommand `argv` names (its first word, as argparse reads it), if any."""
+    names = {name for name, _, _ in COMMANDS}
+    first = next((a for a in argv if not a.startswith("-")), None)
+    return first if first in names else None
+
+
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    argv = sys.argv[1:] if argv is None else argv
+    args = build_parser(chosen_command(argv)).parse_args(argv)
     err = getattr(args, "_import_error", None)
     if err is not None:
         print(f"reshader-train {args.command}: missing dependency: {err}", file=sys.stderr)

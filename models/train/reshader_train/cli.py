@@ -50,6 +50,11 @@ COMMANDS = [
         "or the sliding layer's fraction)",
     ),
     ("evaluate", "reshader_train.evaluate", "PSNR/SSIM of input vs reshaded on held-out data"),
+    (
+        "compare",
+        "reshader_train.compare",
+        "two models' evaluate --json on the same views, view by view: where one gains or loses",
+    ),
     ("export", "reshader_train.export", "ONNX models (fp32/fp16/int8, single/split) + manifests"),
     ("quantize", "reshader_train.quantize", "quantisation-aware int8 fine-tuning of a checkpoint"),
     ("fixture", "reshader_train.fixture", "tiny model + parity data for the runtime's tests"),

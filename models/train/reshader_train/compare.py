@@ -12,7 +12,7 @@ import statistics
 import sys
 from pathlib import Path
 
-from .evaluate import CHANGING_BELOW_DB
+from .evaluate import split_by_change
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -52,11 +52,7 @@ def differences(before: list[dict], after: list[dict]) -> list[dict]:
 
 def parts(rows: list[dict]) -> dict[str, list[dict]]:
     """Changing and static views (the glossy families'), and each family."""
-    glossy = [r for r in rows if r["split"] != "diffuse"]
-    out = {
-        "changing": [r for r in glossy if r["psnr_input"] < CHANGING_BELOW_DB],
-        "static": [r for r in glossy if r["psnr_input"] >= CHANGING_BELOW_DB],
-    }
+    out = split_by_change([r for r in rows if r["split"] != "diffuse"])
     for r in rows:
         out.setdefault(r["split"], []).append(r)
     return {name: rs for name, rs in out.items() if rs}

@@ -152,17 +152,16 @@ fn refine(band: &mut Band, input: &BandInput) {
             if n == NONE {
                 continue;
             }
-            let (ox, oy) = (rx - (m as i64) % w, ry - (m as i64) / w);
-            let s = band.source[n as usize] as i64;
-            consider(input, &target, d, (s % w + ox, s / w + oy), &mut best);
-            consider(input, &target, d, (s % w - ox, s / w - oy), &mut best);
+            let offset = (rx - (m as i64) % w, ry - (m as i64) / w);
+            for at in copies(band.source[n as usize], w, offset) {
+                consider(input, &target, d, at, &mut best);
+            }
         }
         let mut rng = SplitMix(r as u64 ^ 0x5851_f42d_4c95_7f2d);
         let mut radius = (2 * input.patch_radius + 8) as i64;
         while radius >= 1 {
             let (cx, cy) = (best.1 as i64 % w, best.1 as i64 / w);
-            let dx = (rng.next() % (2 * radius as u64 + 1)) as i64 - radius;
-            let dy = (rng.next() % (2 * radius as u64 + 1)) as i64 - radius;
+            let (dx, dy) = rng.offset(radius);
             consider(input, &target, d, (cx + dx, cy + dy), &mut best);
             radius /= 2;
         }
@@ -246,9 +245,9 @@ fn best_source(band: &Band, input: &BandInput, r: usize, d: f32, reach: usize) -
             // mirror image: growing away from the background the same offset soon walks
             // off the background's edge, and the mirror walks back into it instead.
             k if k != NONE => {
-                let s = band.source[k as usize] as i64;
-                consider((s % w + ox, s / w + oy));
-                consider((s % w - ox, s / w - oy));
+                for at in copies(band.source[k as usize], w, (ox, oy)) {
+                    consider(at);
+                }
             }
             // Background next to the hole: itself and its mirror image across r's edge.
             _ if input.colour_source(m, d) => {
@@ -261,11 +260,17 @@ fn best_source(band: &Band, input: &BandInput, r: usize, d: f32, reach: usize) -
     let radius = (2 * reach + input.patch_radius + 1) as i64;
     let mut rng = SplitMix(r as u64 ^ 0x9e37_79b9_7f4a_7c15);
     for _ in 0..input.random_candidates {
-        let dx = (rng.next() % (2 * radius as u64 + 1)) as i64 - radius;
-        let dy = (rng.next() % (2 * radius as u64 + 1)) as i64 - radius;
+        let (dx, dy) = rng.offset(radius);
         consider((rx + dx, ry + dy));
     }
     (best.1 != NONE).then_some(best.1)
+}
+
+/// Where a neighbour's copy from `source` continues at a pixel `offset` away from it, and
+/// that position's mirror image about the source.
+fn copies(source: u32, w: i64, (ox, oy): (i64, i64)) -> [(i64, i64); 2] {
+    let (sx, sy) = (source as i64 % w, source as i64 / w);
+    [(sx + ox, sy + oy), (sx - ox, sy - oy)]
 }
 
 /// Takes the background pixel at `at` as `best` (score, pixel) when its neighbourhood

@@ -51,11 +51,8 @@ pub(super) fn synthesize(rgb: &mut [f32], inv_z: &[f32], hole: &[bool], w: usize
         }
         let radius = 4 * PATCH + 2 * distance_to_known(&known, px, py, w, h);
         for _ in 0..RANDOM {
-            let span = (2 * radius + 1) as u64;
-            candidates.push((
-                px + (rng.next() % span) as i64 - radius,
-                py + (rng.next() % span) as i64 - radius,
-            ));
+            let (dx, dy) = rng.offset(radius);
+            candidates.push((px + dx, py + dy));
         }
         let mut best = (f32::INFINITY, usize::MAX);
         for (sx, sy) in candidates {

@@ -42,6 +42,14 @@ impl SplitMix {
         z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
         z ^ (z >> 31)
     }
+
+    /// An offset drawn in the square of half-width `radius` (x first, then y).
+    fn offset(&mut self, radius: i64) -> (i64, i64) {
+        let span = (2 * radius + 1) as u64;
+        let dx = (self.next() % span) as i64 - radius;
+        let dy = (self.next() % span) as i64 - radius;
+        (dx, dy)
+    }
 }
 
 /// What the view shows beyond the photo's borders.

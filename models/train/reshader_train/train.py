@@ -49,6 +49,7 @@ from .model import (
     net_config,
 )
 from .onnx_weights import load_onnx_weights
+from .tonemap import EVAL_EXPOSURE, EVAL_GAMMA, EXPOSURE_RANGE, GAMMA_RANGE
 
 CHECKPOINT = "checkpoint.pt"
 LOG_FIELDS = (
@@ -72,6 +73,18 @@ def checked_pixel_loss(name: str) -> str:
     except ValueError as err:
         raise argparse.ArgumentTypeError(str(err)) from None
     return name
+
+
+def _range(text: str) -> tuple[float, float]:
+    """ "LO,HI" (or one value for both) as a pair of positive floats, LO <= HI."""
+    parts = text.split(",")
+    try:
+        lo, hi = (float(v) for v in (parts * 2 if len(parts) == 1 else parts))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected LO,HI (two numbers)") from None
+    if not 0.0 < lo <= hi:
+        raise argparse.ArgumentTypeError(f"{text!r}: need 0 < LO <= HI")
+    return lo, hi
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -141,6 +154,23 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="augment with all eight symmetries of the square crop (x and y mirrors and the "
         "transpose, camera moved to match) instead of the x mirror alone: four times the "
         "geometric variety from the same renders",
+    )
+    p.add_argument(
+        "--exposure",
+        type=_range,
+        default=EXPOSURE_RANGE,
+        metavar="LO,HI",
+        help="exposure of the tone curve each sample is shown through, log-uniform in LO,HI "
+        f"(default {EXPOSURE_RANGE[0]:g},{EXPOSURE_RANGE[1]:g}, the paper's; the evaluation uses "
+        f"{EVAL_EXPOSURE:g}; LO = HI: that exposure alone)",
+    )
+    p.add_argument(
+        "--gamma",
+        type=_range,
+        default=GAMMA_RANGE,
+        metavar="LO,HI",
+        help=f"gamma of that tone curve, uniform in LO,HI (default {GAMMA_RANGE[0]:g},"
+        f"{GAMMA_RANGE[1]:g}, the paper's; the evaluation and sRGB photos: about {EVAL_GAMMA:g})",
     )
     p.add_argument(
         "--targets-per-example",
@@ -435,7 +465,7 @@ def make_loader(
     dataset = ReshadeDataset(
         folders,
         crop=args.crop,
-        augment=Augment(dihedral=args.dihedral),
+        augment=Augment(exposure=args.exposure, gamma=args.gamma, dihedral=args.dihedral),
         cache=not args.no_cache,
         reuse=reuse,
         targets=args.targets_per_example,

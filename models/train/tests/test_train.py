@@ -346,3 +346,15 @@ def test_a_log_from_before_a_new_column_is_rewritten_with_it(tmp_path):
     first, second = read_csv(path)
     assert first[LOG_FIELDS[-1]] == "" and first["loss"] == "1"
     assert second[LOG_FIELDS[-1]] == "2"
+
+
+def test_tone_curve_ranges_reach_the_samples(data, tmp_path):
+    from reshader_train.train import make_loader, setup_distributed
+
+    args = train_args(data, tmp_path / "run", 1, exposure="5.5", gamma="2.2,2.4")
+    assert args.exposure == (5.5, 5.5) and args.gamma == (2.2, 2.4)
+    dataset = make_loader(args, setup_distributed("cpu"), list_examples(data[0]))[0]
+    assert dataset.augment.exposure == (5.5, 5.5) and dataset.augment.gamma == (2.2, 2.4)
+    for bad in ("10,3", "a,b", "1,2,3", "0,2"):
+        with pytest.raises(SystemExit):
+            train_args(data, tmp_path / "run", 1, gamma=bad)

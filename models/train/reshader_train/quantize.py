@@ -344,8 +344,16 @@ def int8_scores(
 
 
 def augment_of(ckpt: dict) -> Augment:
-    """The augmentation the checkpoint was trained with, so that QAT sees the same crops."""
-    return Augment(dihedral=bool(ckpt.get("args", {}).get("dihedral", False)))
+    """The augmentation the checkpoint was trained with, so that QAT sees the same crops
+    through the same tone curves (checkpoints from before `--exposure` and `--gamma`
+    existed were trained with the defaults)."""
+    args = ckpt.get("args", {})
+    default = Augment()
+    return Augment(
+        exposure=tuple(args.get("exposure", default.exposure)),
+        gamma=tuple(args.get("gamma", default.gamma)),
+        dihedral=bool(args.get("dihedral", False)),
+    )
 
 
 def qat_target(float_net: ReshadeNet, batch: dict[str, torch.Tensor], target: str) -> torch.Tensor:

@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from reshader_train import cli
-from reshader_train.data import list_examples
+from reshader_train.data import Augment, list_examples
 from reshader_train.synthetic import write_dataset
 from reshader_train.train import Compute, lr_at, train
 
@@ -228,10 +228,12 @@ def test_dihedral_reaches_the_loader_and_quantize(data, tmp_path, monkeypatch):
     real = train_module.Augment
     monkeypatch.setattr(train_module, "Augment", lambda **kw: made.append(kw) or real(**kw))
     run = tmp_path / "dihedral"
-    train(train_args(data, run, 2, dihedral=True))
-    assert made and all(kw == {"dihedral": True} for kw in made)
+    train(train_args(data, run, 2, dihedral=True, gamma="2.2,3"))
+    assert made and all(kw["dihedral"] and kw["gamma"] == (2.2, 3.0) for kw in made)
     ckpt = torch.load(run / "checkpoint.pt", weights_only=False)
     assert augment_of(ckpt).dihedral
+    assert augment_of(ckpt).gamma == (2.2, 3.0)
+    assert augment_of(ckpt).exposure == Augment().exposure
     assert not augment_of({"args": {}}).dihedral
 
 

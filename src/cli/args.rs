@@ -15,7 +15,7 @@ use reshader::engine::manifest::Precision;
 use reshader::interleave::{Blend, Board};
 use reshader::io::keyword::Keyword;
 use reshader::pipeline::{Scene, SceneDepth};
-use reshader::relocate::ldi::{Border, Silhouettes};
+use reshader::relocate::ldi::{Border, Silhouettes, BAND_SMOOTHING_PX};
 use reshader::relocate::{RelocateConfig, RelocateKind};
 use reshader::reshade::net::choice::{Head, ReshadeConfig};
 
@@ -334,6 +334,12 @@ pub struct RelocateArgs {
     /// wholly to its side. `live` always draws them hard.
     #[arg(long, value_parser = keyword::<Silhouettes>(), default_value = "soft")]
     pub silhouettes: Silhouettes,
+    /// Radius in pixels of the box over which the background inpainted behind each
+    /// occluder (LDI) is averaged with the surface around it: synthesised texture is
+    /// plausible but not what was hidden, and its mean is nearer; 0 keeps the texture as
+    /// synthesised. `live` never smooths.
+    #[arg(long, default_value_t = BAND_SMOOTHING_PX, value_name = "PX")]
+    pub band_smoothing: usize,
 }
 
 impl RelocateArgs {
@@ -342,6 +348,7 @@ impl RelocateArgs {
             kind: self.kind,
             border: self.border,
             silhouettes: self.silhouettes,
+            band_smoothing: self.band_smoothing,
         }
     }
 }

@@ -6,7 +6,7 @@ use anyhow::Result;
 use clap::Args;
 
 use reshader::eval::relocation::{run, EvalConfig, EvalDepth, COARSE_FACTOR};
-use reshader::relocate::ldi::{Border, Silhouettes};
+use reshader::relocate::ldi::{Border, Silhouettes, BAND_SMOOTHING_PX};
 
 use crate::args::{keyword, ReshadeArgs};
 
@@ -46,6 +46,10 @@ pub struct EvalArgs {
     /// --silhouettes`).
     #[arg(long, value_parser = keyword::<Silhouettes>(), default_value = "soft")]
     pub silhouettes: Silhouettes,
+    /// Radius in pixels of the box that smooths the LDI's inpainted background (as
+    /// `render --band-smoothing`; 0: the synthesised texture).
+    #[arg(long, default_value_t = BAND_SMOOTHING_PX, value_name = "PX")]
+    pub band_smoothing: usize,
     /// Depth the methods relocate with: the renderer's (`truth`), the shipped depth
     /// network's (`network`: fp32, refined as `render` does) scale-aligned to the
     /// renderer's in disparity, as a real photo's depth would be, or the renderer's with
@@ -98,6 +102,7 @@ pub fn eval_relocation(args: &EvalArgs) -> Result<()> {
         gamma: args.gamma,
         border: args.border,
         silhouettes: args.silhouettes,
+        band_smoothing: args.band_smoothing,
         depth_source: args.depth_source,
         depth_model: args.depth_model.clone(),
         coarse_factor: args.coarse_factor,

@@ -101,6 +101,7 @@ pub struct EvalConfig {
     pub border: Border,
     /// How the LDI draws the pixels that mix the two sides of a depth step.
     pub silhouettes: Silhouettes,
+    pub band_smoothing: usize,
     /// Depth the methods relocate with: the renderer's, or the shipped depth network's
     /// scale-aligned to it in disparity.
     pub depth_source: EvalDepth,
@@ -194,6 +195,7 @@ pub fn run(args: &EvalConfig) -> Result<(Vec<ExampleReport>, String), EvalError>
         let ldi = LdiConfig {
             border: args.border,
             silhouettes: args.silhouettes,
+            band_smoothing: args.band_smoothing,
             ..LdiConfig::default()
         };
         let (report, sheet) = evaluate(&example, &ldi, reshader.as_ref())?;
@@ -528,13 +530,14 @@ fn depth_label(args: &EvalConfig) -> String {
 /// the reshading model adds to the LDI's novel views.
 pub fn table(reports: &[ExampleReport], args: &EvalConfig, model: &str) -> String {
     let mut out = format!(
-        "{} examples, {} depth, tone mapping x{} gamma {}, LDI border {}, {} silhouettes, reshading model {model}; PSNR dB / SSIM against the ground-truth novel view; PSNR dB in the true geometry's regions\n\n",
+        "{} examples, {} depth, tone mapping x{} gamma {}, LDI border {}, {} silhouettes, band smoothed over {} px, reshading model {model}; PSNR dB / SSIM against the ground-truth novel view; PSNR dB in the true geometry's regions\n\n",
         reports.len(),
         depth_label(args),
         args.exposure,
         args.gamma,
         args.border,
-        args.silhouettes
+        args.silhouettes,
+        args.band_smoothing
     );
     out.push_str(
         "| method | colours | all | visible in input | disoccluded | edge band | uncovered | border |\n|---|---|---|---|---|---|---|---|\n",

@@ -15,7 +15,9 @@ pub mod map;
 
 use crate::depth::DepthMap;
 use crate::io::photo::SrgbImage;
-use crate::relocate::ldi::{view_reach, Border, LdiConfig, LdiRelocator, Silhouettes};
+use crate::relocate::ldi::{
+    view_reach, Border, LdiConfig, LdiRelocator, Silhouettes, BAND_SMOOTHING_PX,
+};
 use crate::relocate::map::ViewMap;
 use crate::views::{Intrinsics, ViewCamera};
 use image::RgbImage;
@@ -124,13 +126,26 @@ impl crate::io::keyword::Keyword for RelocateKind {
 }
 
 /// What the relocation options of `render`, `view`, `convert`, `watch` ask for.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub struct RelocateConfig {
     pub kind: RelocateKind,
     /// Beyond the photo's borders (LDI).
     pub border: Border,
     /// How the pixels that mix the two sides of a depth step are drawn (LDI).
     pub silhouettes: Silhouettes,
+    /// Radius of the box that smooths the inpainted background band (LDI, px; 0: off).
+    pub band_smoothing: usize,
+}
+
+impl Default for RelocateConfig {
+    fn default() -> Self {
+        Self {
+            kind: RelocateKind::default(),
+            border: Border::default(),
+            silhouettes: Silhouettes::default(),
+            band_smoothing: BAND_SMOOTHING_PX,
+        }
+    }
 }
 
 impl RelocateConfig {
@@ -146,9 +161,11 @@ impl RelocateConfig {
     /// ([`LdiRelocator::steady`]).
     pub fn build_live(&self) -> Box<dyn Relocator> {
         // Live views are lookups into each frame, made once per key frame; a soft
-        // pixel is a blend of three pixels, which a lookup cannot express.
+        // pixel is a blend of three pixels and a smoothed band sample a copy plus an
+        // offset, which a lookup cannot express.
         let config = LdiConfig {
             silhouettes: Silhouettes::Hard,
+            band_smoothing: 0,
             ..self.ldi_config()
         };
         match self.kind {
@@ -161,6 +178,7 @@ impl RelocateConfig {
         LdiConfig {
             border: self.border,
             silhouettes: self.silhouettes,
+            band_smoothing: self.band_smoothing,
             ..LdiConfig::default()
         }
     }

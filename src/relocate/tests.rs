@@ -159,9 +159,11 @@ fn textured_square() -> (RgbImage, DepthMap) {
 fn ldi_view_maps_render_the_views_the_ldi_renders() {
     let (frame, depth) = textured_square();
     let colours = SrgbImage::from_rgb8(&frame);
-    // As `live` builds it: a soft pixel is a blend, which a lookup cannot express.
+    // As `live` builds it: a soft pixel is a blend and a smoothed band sample a copy
+    // plus an offset, which a lookup cannot express.
     let relocator = LdiRelocator::new(LdiConfig {
         silhouettes: Silhouettes::Hard,
+        band_smoothing: 0,
         ..LdiConfig::default()
     });
     let cameras = [view(-0.3), view(0.0), view(0.25)];
@@ -193,11 +195,12 @@ fn ldi_view_maps_render_the_views_the_ldi_renders() {
 }
 
 #[test]
-fn inpainted_borders_and_soft_silhouettes_give_no_view_map() {
+fn inpainted_borders_soft_silhouettes_and_a_smoothed_band_give_no_view_map() {
     let (frame, depth) = textured_square();
     let colours = SrgbImage::from_rgb8(&frame);
     let hard = LdiConfig {
         silhouettes: Silhouettes::Hard,
+        band_smoothing: 0,
         ..LdiConfig::default()
     };
     let configs = [
@@ -205,6 +208,13 @@ fn inpainted_borders_and_soft_silhouettes_give_no_view_map() {
         (
             LdiConfig {
                 border: Border::Inpaint,
+                ..hard.clone()
+            },
+            false,
+        ),
+        (
+            LdiConfig {
+                band_smoothing: 3,
                 ..hard
             },
             false,

@@ -407,30 +407,34 @@ fn patch_distance(
 mod tests {
     use super::*;
 
-    /// A far wall of diagonal stripes (three colours, each stripe two pixels wide)
-    /// behind a near square: the share of band pixels whose copied colour is the
-    /// stripe the wall has there.
-    fn stripes_behind_a_square(refined: bool) -> f64 {
-        let (w, h) = (48, 40);
-        let stripe = |i: usize| ((i % w) / 2 + i / w) % 3;
-        let palette = [[0.9, 0.2, 0.1], [0.1, 0.7, 0.2], [0.2, 0.3, 0.9]];
-        let near = |i: usize| (16..32).contains(&(i % w)) && (12..28).contains(&(i / w));
-        let disparity: Vec<f32> = (0..w * h)
+    const W: usize = 48;
+    const H: usize = 40;
+
+    /// A wall (colour per pixel from `wall`) behind a near square of colour `front`,
+    /// handed to `look` as the band's input.
+    fn behind_a_square<T>(
+        mut wall: impl FnMut(usize) -> [f32; 3],
+        front: [f32; 3],
+        look: impl FnOnce(&BandInput) -> T,
+    ) -> T {
+        let near = |i: usize| (16..32).contains(&(i % W)) && (12..28).contains(&(i / W));
+        let disparity: Vec<f32> = (0..W * H)
             .map(|i| if near(i) { 0.8 } else { 0.2 })
             .collect();
-        let colours: Vec<f32> = (0..w * h)
+        let colours: Vec<f32> = (0..W * H)
             .flat_map(|i| {
+                let behind = wall(i);
                 if near(i) {
-                    [0.5; 3]
+                    front
                 } else {
-                    palette[stripe(i)]
+                    behind
                 }
             })
             .collect();
-        let cuts = super::super::edges::detect(&disparity, w, h, 0.04, 6);
-        let input = BandInput {
-            width: w,
-            height: h,
+        let cuts = super::super::edges::detect(&disparity, W, H, 0.04, 6);
+        look(&BandInput {
+            width: W,
+            height: H,
             disparity: &disparity,
             colours: &colours,
             cuts: &cuts,
@@ -439,12 +443,27 @@ mod tests {
             threshold: 0.04,
             patch_radius: 2,
             random_candidates: 6,
-        };
-        let mut band = spread(&input);
-        if refined {
-            refine(&mut band, &input);
-        }
-        let filled: Vec<usize> = (0..w * h).filter(|&p| band.at[p] != NONE).collect();
+        })
+    }
+
+    /// A far wall of diagonal stripes (three colours, each stripe two pixels wide)
+    /// behind a near square: the share of band pixels whose copied colour is the
+    /// stripe the wall has there.
+    fn stripes_behind_a_square(refined: bool) -> f64 {
+        let stripe = |i: usize| ((i % W) / 2 + i / W) % 3;
+        let palette = [[0.9, 0.2, 0.1], [0.1, 0.7, 0.2], [0.2, 0.3, 0.9]];
+        let band = behind_a_square(
+            |i| palette[stripe(i)],
+            [0.5; 3],
+            |input| {
+                let mut band = spread(input);
+                if refined {
+                    refine(&mut band, input);
+                }
+                band
+            },
+        );
+        let filled: Vec<usize> = (0..W * H).filter(|&p| band.at[p] != NONE).collect();
         assert!(
             filled.len() > 150,
             "the band covers {} pixels",
@@ -460,44 +479,19 @@ mod tests {
     /// A grey wall of noisy pixels behind a pure red square, inpainted: per band sample
     /// its colour as copied and with `smoothing` added.
     fn noisy_wall_band(radius: usize) -> Vec<([f32; 3], [f32; 3])> {
-        let (w, h) = (48, 40);
-        let near = |i: usize| (16..32).contains(&(i % w)) && (12..28).contains(&(i / w));
-        let disparity: Vec<f32> = (0..w * h)
-            .map(|i| if near(i) { 0.8 } else { 0.2 })
-            .collect();
         let mut rng = SplitMix(7);
-        let colours: Vec<f32> = (0..w * h)
-            .flat_map(|i| {
-                let grey = 0.3 + 0.4 * (rng.next() % 1000) as f32 / 1000.0;
-                if near(i) {
-                    [1.0, 0.0, 0.0]
-                } else {
-                    [grey; 3]
-                }
-            })
-            .collect();
-        let cuts = super::super::edges::detect(&disparity, w, h, 0.04, 6);
-        let input = BandInput {
-            width: w,
-            height: h,
-            disparity: &disparity,
-            colours: &colours,
-            cuts: &cuts,
-            px_per_disparity: 10.0,
-            max_band_px: 256,
-            threshold: 0.04,
-            patch_radius: 2,
-            random_candidates: 6,
-        };
-        let band = grow(&input);
-        let shade = smoothing(&band, &input, radius);
-        (0..band.disparity.len())
-            .map(|k| {
-                let copied = input.colour(band.source[k] as usize);
-                let offset = shade.get(k).copied().unwrap_or_default();
-                (copied, std::array::from_fn(|c| copied[c] + offset[c]))
-            })
-            .collect()
+        let grey = move |_| [0.3 + 0.4 * (rng.next() % 1000) as f32 / 1000.0; 3];
+        behind_a_square(grey, [1.0, 0.0, 0.0], |input| {
+            let band = grow(input);
+            let shade = smoothing(&band, input, radius);
+            (0..band.disparity.len())
+                .map(|k| {
+                    let copied = input.colour(band.source[k] as usize);
+                    let offset = shade.get(k).copied().unwrap_or_default();
+                    (copied, std::array::from_fn(|c| copied[c] + offset[c]))
+                })
+                .collect()
+        })
     }
 
     #[test]

@@ -173,7 +173,7 @@ fn refine(band: &mut Band, input: &BandInput) {
 /// around it (band samples of about its disparity and background pixels behind or on
 /// it, within `radius` px): added to the copy in every view, it averages the band over
 /// that box. Patch synthesis copies texture that is plausible but not the hidden one;
-/// its mean lies nearer the truth (0.2-0.9 dB in the uncovered regions of held-out
+/// its mean lies nearer the truth (+0.3 to +0.75 dB in the uncovered regions of held-out
 /// renders with true depth, docs/relocation.md) and its seams and repeated rows soften.
 /// Empty when `radius` is 0.
 pub(super) fn smoothing(band: &Band, input: &BandInput, radius: usize) -> Vec<[f32; 3]> {

@@ -344,16 +344,20 @@ impl Ldi {
                 *shade = [0.0; 3];
             }
         }
-        let band_rgb = (config.band_colours == BandColours::Inpainted).then(|| {
-            let rgb = band
-                .source
-                .iter()
-                .enumerate()
-                .map(|(k, &i)| shaded(colours.get(i % w as u32, i / w as u32), band_shade.get(k)))
-                .collect();
-            band_shade.clear();
-            rgb
-        });
+        let band_rgb: Option<Vec<[f32; 3]>> =
+            (config.band_colours == BandColours::Inpainted).then(|| {
+                band.source
+                    .iter()
+                    .enumerate()
+                    .map(|(k, &i)| {
+                        shaded(colours.get(i % w as u32, i / w as u32), band_shade.get(k))
+                    })
+                    .collect()
+            });
+        // Build-time colours already hold the smoothing.
+        if band_rgb.is_some() {
+            band_shade = Vec::new();
+        }
         Ok(Self {
             source: *source,
             scale,
@@ -464,8 +468,8 @@ impl Ldi {
 
     /// The view as a lookup into the colours: each pixel's subsamples' source pixels.
     /// None with `--border inpaint` (holes are synthesised per view), build-time band
-    /// colours (not in the colours rendered) or soft silhouettes (a blend of three
-    /// pixels, not a lookup).
+    /// colours (not in the colours rendered), a smoothed band (a copy plus an offset) or
+    /// soft silhouettes (a blend of three pixels, not a lookup).
     pub fn view_map(&self, view: &ViewCamera) -> Option<ViewMap> {
         if self.border == Border::Inpaint
             || self.band_rgb.is_some()

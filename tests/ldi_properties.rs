@@ -226,6 +226,31 @@ fn the_band_continues_the_wall_stripes_instead_of_repeating_one_pixel_per_row() 
 }
 
 #[test]
+fn the_reported_memory_counts_the_band_colours() {
+    let scene = Scene::wall(4.0).rect(20..40, 10..38, RED, 1.0);
+    let with = |band_smoothing, band_colours| {
+        let config = LdiConfig {
+            band_smoothing,
+            band_colours,
+            ..LdiConfig::default()
+        };
+        scene.build(&config, 0.2).stats()
+    };
+    let bare = with(0, BandColours::View);
+    assert!(bare.band_samples > 100, "{}", bare.band_samples);
+    // One RGB triple per band sample: the smoothing's offsets, or the build-time colours.
+    let per_sample = bare.band_samples * std::mem::size_of::<[f32; 3]>();
+    for (smoothing, colours) in [(3, BandColours::View), (0, BandColours::Inpainted)] {
+        let stats = with(smoothing, colours);
+        assert_eq!(
+            stats.memory_bytes,
+            bare.memory_bytes + per_sample,
+            "smoothing {smoothing}, {colours:?}"
+        );
+    }
+}
+
+#[test]
 fn each_view_takes_the_front_colours_from_its_own_image() {
     let scene = Scene::wall(4.0).rect(20..40, 10..38, RED, 1.0);
     let ldi = scene.build(&LdiConfig::default(), 0.2);

@@ -54,6 +54,10 @@ impl Mattes {
         self.soft.is_empty()
     }
 
+    pub fn heap_bytes(&self) -> usize {
+        self.soft.capacity() * std::mem::size_of::<Soft>() + self.in_soft_pass.capacity()
+    }
+
     /// Whether sample `s` is drawn in the soft pass rather than with the opaque ones.
     pub fn is_soft(&self, s: u32) -> bool {
         self.in_soft_pass.get(s as usize).copied().unwrap_or(false)

@@ -303,38 +303,6 @@ impl Ldi {
             },
         });
         matte::add_fringes(&mut mesh, &mut mattes, &fringes, w, &ray);
-        let stats = LdiStats {
-            width: w,
-            height: h,
-            contours_kept: cuts.contours_kept,
-            contours_dropped: cuts.contours_dropped,
-            cut_pairs: cuts.pairs(&disparity).count(),
-            band_samples: band.disparity.len(),
-            soft_pixels: mattes.soft.len(),
-            vertices: mesh.vertices.len(),
-            memory_bytes: mesh.vertices.capacity() * std::mem::size_of::<mesh::Vertex>()
-                + mesh.samples.capacity() * std::mem::size_of::<mesh::Sample>(),
-            reach,
-            border_margin_px: margin,
-            crop: if config.border == Border::Crop {
-                crop_for_margin(margin, source)
-            } else {
-                1.0
-            },
-        };
-        log::info!(
-            "LDI built: {}x{}, {} contours cut ({} dropped), {} vertices, {} in the \
-             background band, {} soft, {}, border margin {} px",
-            stats.width,
-            stats.height,
-            stats.contours_kept,
-            stats.contours_dropped,
-            stats.vertices,
-            stats.band_samples,
-            stats.soft_pixels,
-            crate::io::limits::Bytes(stats.memory_bytes as u64),
-            stats.border_margin_px
-        );
         let mut band_shade = band::smoothing(&band, &band_input, config.band_smoothing);
         // A soft pixel trades the colour beneath it for what each view sees behind it:
         // that colour must be the one mixed into the photo's pixel, not the mean.
@@ -358,6 +326,41 @@ impl Ldi {
         if band_rgb.is_some() {
             band_shade = Vec::new();
         }
+        let stats = LdiStats {
+            width: w,
+            height: h,
+            contours_kept: cuts.contours_kept,
+            contours_dropped: cuts.contours_dropped,
+            cut_pairs: cuts.pairs(&disparity).count(),
+            band_samples: band.disparity.len(),
+            soft_pixels: mattes.soft.len(),
+            vertices: mesh.vertices.len(),
+            memory_bytes: mesh.vertices.capacity() * std::mem::size_of::<mesh::Vertex>()
+                + mesh.samples.capacity() * std::mem::size_of::<mesh::Sample>()
+                + mattes.heap_bytes()
+                + (band_shade.capacity() + band_rgb.as_ref().map_or(0, Vec::capacity))
+                    * std::mem::size_of::<[f32; 3]>(),
+            reach,
+            border_margin_px: margin,
+            crop: if config.border == Border::Crop {
+                crop_for_margin(margin, source)
+            } else {
+                1.0
+            },
+        };
+        log::info!(
+            "LDI built: {}x{}, {} contours cut ({} dropped), {} vertices, {} in the \
+             background band, {} soft, {}, border margin {} px",
+            stats.width,
+            stats.height,
+            stats.contours_kept,
+            stats.contours_dropped,
+            stats.vertices,
+            stats.band_samples,
+            stats.soft_pixels,
+            crate::io::limits::Bytes(stats.memory_bytes as u64),
+            stats.border_margin_px
+        );
         Ok(Self {
             source: *source,
             scale,

@@ -72,6 +72,13 @@ impl BandInput<'_> {
         self.disparity[i] <= d * (1.0 + SOURCE_SLOPE_ALLOWANCE * self.threshold)
     }
 
+    /// Whether a band sample of disparity `b` lies on the surface of one of disparity
+    /// `d`, with the room [`Self::colour_source`] gives the background, so that band
+    /// samples and background pixels join a mean on the same terms.
+    fn same_surface(&self, b: f32, d: f32) -> bool {
+        (b - d).abs() <= SOURCE_SLOPE_ALLOWANCE * self.threshold * d
+    }
+
     fn neighbours4(&self, i: usize) -> impl Iterator<Item = usize> {
         let (w, h) = (self.width, self.height);
         let (x, y) = (i % w, i / w);
@@ -201,7 +208,7 @@ pub(super) fn smoothing(band: &Band, input: &BandInput, radius: usize) -> Vec<[f
                         NONE if input.colour_source(i, d) => input.colour(i),
                         b if b != NONE
                             && b as usize != k
-                            && settled_near(band.disparity[b as usize], d, input) =>
+                            && input.same_surface(band.disparity[b as usize], d) =>
                         {
                             copied(b as usize)
                         }
@@ -214,12 +221,6 @@ pub(super) fn smoothing(band: &Band, input: &BandInput, radius: usize) -> Vec<[f
             std::array::from_fn(|c| sum[c] / n - own[c])
         })
         .collect()
-}
-
-/// Whether a band sample of disparity `b` lies on the surface of the sample of
-/// disparity `d`, as [`BandInput::colour_source`] allows for the background.
-fn settled_near(b: f32, d: f32, input: &BandInput) -> bool {
-    (b - d).abs() <= SOURCE_SLOPE_ALLOWANCE * input.threshold * d
 }
 
 /// The far pixel of every cut, with the band width its edge needs, the disparity of the

@@ -424,6 +424,8 @@ mod tests {
             .collect();
         let colours: Vec<f32> = (0..W * H)
             .flat_map(|i| {
+                // Drawn for every pixel, hidden or not, so that a noisy wall's draws do
+                // not depend on where the square lies.
                 let behind = wall(i);
                 if near(i) {
                     front

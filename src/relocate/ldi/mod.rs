@@ -231,6 +231,53 @@ pub fn view_reach(centre: [f64; 3], source: &Intrinsics) -> f64 {
     sideways + centre[2].abs() * half_diagonal / source.fx.min(source.fy)
 }
 
+/// The widest parallax between the photo's nearest and farthest points at
+/// `px_per_disparity`, in pixels (at most the band's width), plus one: how far a view
+/// may see past the frame's edge.
+fn border_margin(disparity: &[f32], px_per_disparity: f64, max_band_px: usize) -> f64 {
+    let (lo, hi) = disparity
+        .iter()
+        .fold((f32::INFINITY, 0.0f32), |(lo, hi), &d| {
+            (lo.min(d), hi.max(d))
+        });
+    (px_per_disparity * f64::from(hi - lo))
+        .ceil()
+        .min(max_band_px as f64)
+        + 1.0
+}
+
+/// The band's smoothing, as per-sample offsets each view adds to its own colours; with
+/// [`BandColours::Inpainted`], the band's colours fixed at build time instead, which
+/// already hold the smoothing (the offsets are then empty).
+fn band_colours(
+    band: &band::Band,
+    input: &band::BandInput,
+    mattes: &matte::Mattes,
+    colours: &SrgbImage,
+    config: &LdiConfig,
+) -> (Vec<[f32; 3]>, Option<Vec<[f32; 3]>>) {
+    let (w, h) = (input.width, input.height);
+    let mut shade = band::smoothing(band, input, config.band_smoothing);
+    // A soft pixel trades the colour beneath it for what each view sees behind it:
+    // that colour must be the one mixed into the photo's pixel, not the mean.
+    for soft in &mattes.soft {
+        let beneath = (soft.beneath as usize).checked_sub(w * h);
+        if let Some(offset) = beneath.and_then(|k| shade.get_mut(k)) {
+            *offset = [0.0; 3];
+        }
+    }
+    if config.band_colours != BandColours::Inpainted {
+        return (shade, None);
+    }
+    let rgb = band
+        .source
+        .iter()
+        .enumerate()
+        .map(|(k, &i)| shaded(colours.get(i % w as u32, i / w as u32), shade.get(k)))
+        .collect();
+    (Vec::new(), Some(rgb))
+}
+
 impl Ldi {
     /// Builds the LDI of a photo: `colours` guide the inpainting (each view's own
     /// colours are used when rendering), `reach` is the largest view offset to serve
@@ -273,15 +320,7 @@ impl Ldi {
             Silhouettes::Soft => matte::estimate(colours.data(), &disparity, &cuts, &mut band, w),
             Silhouettes::Hard => (matte::Mattes::default(), Vec::new()),
         };
-        let (lo, hi) = disparity
-            .iter()
-            .fold((f32::INFINITY, 0.0f32), |(lo, hi), &d| {
-                (lo.min(d), hi.max(d))
-            });
-        let margin = (f * reach_units * f64::from(hi - lo))
-            .ceil()
-            .min(config.max_band_px as f64)
-            + 1.0;
+        let margin = border_margin(&disparity, f * reach_units, config.max_band_px);
         let ray = |u: f64, v: f64| {
             [
                 ((u - source.cx) / source.fx) as f32,
@@ -303,29 +342,7 @@ impl Ldi {
             },
         });
         matte::add_fringes(&mut mesh, &mut mattes, &fringes, w, &ray);
-        let mut band_shade = band::smoothing(&band, &band_input, config.band_smoothing);
-        // A soft pixel trades the colour beneath it for what each view sees behind it:
-        // that colour must be the one mixed into the photo's pixel, not the mean.
-        for soft in &mattes.soft {
-            let beneath = (soft.beneath as usize).checked_sub(w * h);
-            if let Some(shade) = beneath.and_then(|k| band_shade.get_mut(k)) {
-                *shade = [0.0; 3];
-            }
-        }
-        let band_rgb: Option<Vec<[f32; 3]>> =
-            (config.band_colours == BandColours::Inpainted).then(|| {
-                band.source
-                    .iter()
-                    .enumerate()
-                    .map(|(k, &i)| {
-                        shaded(colours.get(i % w as u32, i / w as u32), band_shade.get(k))
-                    })
-                    .collect()
-            });
-        // Build-time colours already hold the smoothing.
-        if band_rgb.is_some() {
-            band_shade = Vec::new();
-        }
+        let (band_shade, band_rgb) = band_colours(&band, &band_input, &mattes, colours, config);
         let stats = LdiStats {
             width: w,
             height: h,

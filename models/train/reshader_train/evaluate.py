@@ -348,6 +348,14 @@ def split_by_change(rows: list[dict]) -> dict[str, list[dict]]:
     }
 
 
+def gains_by_change(rows: list[dict]) -> dict[str, list[float]]:
+    """Each view's PSNR gain over its input, the changing views apart from the static."""
+    return {
+        part: [r["psnr_ours"] - r["psnr_input"] for r in part_rows]
+        for part, part_rows in split_by_change(rows).items()
+    }
+
+
 def summarise(rows: list[dict]) -> dict[str, dict]:
     """Per split (and per scene when a split has several; all splits together when there
     are several) mean metrics and PSNR gain."""
@@ -367,8 +375,7 @@ def summarise(rows: list[dict]) -> dict[str, dict]:
         out[name]["gain_db"] = float(np.mean(gains))
         out[name]["gain_median_db"] = float(np.median(gains))
         out[name]["improved"] = int(sum(g > 0 for g in gains))
-        for part, rows_of_part in split_by_change(rs).items():
-            part_gains = [r["psnr_ours"] - r["psnr_input"] for r in rows_of_part]
+        for part, part_gains in gains_by_change(rs).items():
             out[name][f"gain_{part}_db"] = float(np.mean(part_gains)) if part_gains else None
             out[name][f"count_{part}"] = len(part_gains)
         weights = [r["valid_values"] for r in rs]

@@ -10,7 +10,7 @@ import json
 import sys
 from pathlib import Path
 
-from .evaluate import split_by_change
+from .evaluate import gains_by_change
 
 STATIC_SLACK_DB = 0.1
 
@@ -19,8 +19,7 @@ def gains(examples: list[dict]) -> dict:
     """Mean gain and counts of the changing and the static views, and how many of the
     changing views improved."""
     out = {}
-    for part, rows in split_by_change(examples).items():
-        g = [r["psnr_ours"] - r["psnr_input"] for r in rows]
+    for part, g in gains_by_change(examples).items():
         out[part] = sum(g) / len(g) if g else float("nan")
         out[f"{part}_views"] = len(g)
         if part == "changing":
